@@ -1,0 +1,168 @@
+"""Reading released DaDiff checkpoints and our own, strictly and without executing pickled code.
+
+Released files are {'epoch', 'state_dict', 'optimizer'} or a bare state_dict, possibly with `module.`
+prefixes (DataParallel). Ours add the model config: {'dadiff_format': 1, 'config': {...}, 'state_dict'}.
+Every failure is a CheckpointError whose message is one line naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .config import FAMILIES, ModelConfig, default_config
+from .network import DaDiffNet, build_model
+
+FORMAT_VERSION = 1
+
+
+class CheckpointError(Exception):
+    """A checkpoint that cannot be used; str() is a one-line message for the user."""
+
+
+@dataclass
+class LoadedCheckpoint:
+    model: DaDiffNet
+    config: ModelConfig
+    source: str          # "released" | "dadiff"
+    sha256: str
+    extra: dict[str, Any]
+
+
+def _numpy_safe_globals() -> list[Any]:
+    """Numpy scalars and dtypes that old pysot-style checkpoints pickle; data only, no code."""
+    core = getattr(np, "_core", None) or np.core
+    allowed: list[Any] = [core.multiarray.scalar, np.dtype]
+    allowed += [type(np.dtype(t)) for t in ("float64", "float32", "int64", "int32", "bool")]
+    return allowed
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def read_checkpoint_file(path: str | Path) -> Any:
+    """torch.load with weights_only=True; turns every failure into one clear line."""
+    p = Path(path)
+    if not p.exists():
+        raise CheckpointError(f"{p}: no such file")
+    if p.is_dir():
+        raise CheckpointError(f"{p}: is a folder, expected a checkpoint file (.pt/.pth)")
+    if p.stat().st_size == 0:
+        raise CheckpointError(f"{p}: empty file")
+    try:
+        with torch.serialization.safe_globals(_numpy_safe_globals()):
+            return torch.load(p, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        first = str(e).strip().splitlines()
+        reason = next((ln.strip() for ln in first if "GLOBAL" in ln or "Unsupported" in ln), first[0] if first else "")
+        if "weights only" in str(e).lower() or "GLOBAL" in str(e):
+            raise CheckpointError(f"{p}: refused, the file pickles objects or code that weights-only loading "
+                                  f"does not execute ({reason})") from None
+        raise CheckpointError(f"{p}: not a PyTorch checkpoint ({reason})") from None
+    except Exception as e:  # torch reports a damaged file through many exception types
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        if "central directory" in msg or "zip archive" in msg or isinstance(e, EOFError):
+            raise CheckpointError(f"{p}: truncated or corrupt checkpoint ({msg})") from None
+        raise CheckpointError(f"{p}: not a PyTorch checkpoint ({msg})") from None
+
+
+def _state_dict_of(obj: Any, path: Path) -> dict[str, torch.Tensor]:
+    sd = obj.get("state_dict", obj) if isinstance(obj, dict) else None
+    if not isinstance(sd, dict) or not sd or not all(isinstance(k, str) for k in sd):
+        raise CheckpointError(f"{path}: no state_dict inside (expected a dict of tensors or a dict with 'state_dict')")
+    tensors = {k: v for k, v in sd.items() if isinstance(v, torch.Tensor)}
+    if not tensors:
+        raise CheckpointError(f"{path}: the state_dict holds no tensors")
+    if all(k.startswith("module.") for k in tensors):
+        tensors = {k[len("module."):]: v for k, v in tensors.items()}
+    return tensors
+
+
+def detect_family(sd: dict[str, torch.Tensor]) -> str | None:
+    """The family whose signature keys the state_dict has, or None."""
+    if "backbone.layer1.0.conv1.weight" in sd and "diffusion.conv_in.weight" in sd:
+        return "dadiff-ban-r50"
+    if "backbone._conv_stem.weight" in sd and "diffusion.conv_in.weight" in sd:
+        return "dadiff-lite"
+    return None
+
+
+def _describe_unknown(sd: dict[str, torch.Tensor]) -> str:
+    if any(k.startswith("car_head.") for k in sd):
+        return "it looks like DaDiff-GAT (car_head.* keys), which is not supported"
+    if "backbone.layer1.0.conv1.weight" in sd and not any(k.startswith("diffusion.") for k in sd):
+        return "it looks like a plain SiamBAN checkpoint without the DaDiff block (no diffusion.* keys)"
+    return f"its keys match neither {' nor '.join(FAMILIES)} (first keys: {', '.join(list(sd)[:3])})"
+
+
+def _names(keys: list[str], limit: int = 5) -> str:
+    shown = ", ".join(keys[:limit])
+    return shown + (f", … ({len(keys) - limit} more)" if len(keys) > limit else "")
+
+
+def load_state_dict_strict(model: DaDiffNet, sd: dict[str, torch.Tensor], path: Path) -> None:
+    """Like load_state_dict(strict=True) but lists every problem by name on one line."""
+    own = model.state_dict()
+    missing = [k for k in own if k not in sd]
+    unexpected = [k for k in sd if k not in own]
+    shapes = [f"{k} {list(sd[k].shape)} vs model {list(own[k].shape)}"
+              for k in own if k in sd and sd[k].shape != own[k].shape]
+    problems = []
+    if missing:
+        problems.append(f"missing {len(missing)} key(s): {_names(missing)}")
+    if unexpected:
+        problems.append(f"unexpected {len(unexpected)} key(s): {_names(unexpected)}")
+    if shapes:
+        problems.append(f"shape mismatch in {len(shapes)} key(s): {_names(shapes, 3)}")
+    if problems:
+        raise CheckpointError(f"{path}: state_dict does not fit {model.cfg.family}: " + "; ".join(problems))
+    model.load_state_dict(sd, strict=True)
+
+
+def load_checkpoint(path: str | Path, family: str | None = None, steps: int | None = None) -> LoadedCheckpoint:
+    """Build the right model for a checkpoint and load it strictly (eval mode)."""
+    p = Path(path)
+    obj = read_checkpoint_file(p)
+    sd = _state_dict_of(obj, p)
+    extra: dict[str, Any] = {}
+    if isinstance(obj, dict) and isinstance(obj.get("config"), dict):
+        try:
+            cfg = ModelConfig.from_dict(obj["config"])
+        except (TypeError, ValueError, KeyError) as e:
+            raise CheckpointError(f"{p}: invalid model config ({e})") from None
+        source = "dadiff"
+        extra = {k: v for k, v in obj.items() if k in ("step", "epoch", "train_config")}
+    else:
+        detected = detect_family(sd)
+        if detected is None:
+            raise CheckpointError(f"{p}: unrecognised model: {_describe_unknown(sd)}")
+        cfg = default_config(detected)
+        source = "released" if detected == "dadiff-ban-r50" else "dadiff"
+    if family is not None and family != cfg.family:
+        raise CheckpointError(f"{p}: holds a {cfg.family} model, not {family}")
+    if steps is not None and steps != cfg.ddim_steps:
+        cfg = cfg.with_steps(steps)
+    model = build_model(cfg)
+    load_state_dict_strict(model, sd, p)
+    model.eval()
+    return LoadedCheckpoint(model, cfg, source, file_sha256(p), extra)
+
+
+def save_checkpoint(path: str | Path, model: DaDiffNet, **extra: Any) -> None:
+    """Our format: config + state_dict (+ optimiser state, step, ... for resuming training)."""
+    payload = {"dadiff_format": FORMAT_VERSION, "config": model.cfg.to_dict(), "state_dict": model.state_dict()}
+    payload.update(extra)
+    tmp = Path(f"{path}.tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)

@@ -1,0 +1,31 @@
+"""Neck: per level a 1x1 conv + BN to a common width; template maps are centre-cropped (spec 4)."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class AdjustLayer(nn.Module):
+    def __init__(self, in_ch: int, out_ch: int, center_size: int) -> None:
+        super().__init__()
+        self.downsample = nn.Sequential(nn.Conv2d(in_ch, out_ch, 1, bias=False), nn.BatchNorm2d(out_ch))
+        self.center_size = center_size
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.downsample(x)
+        if x.shape[3] < 20:  # template map: keep the centre (4 .. 4 + center_size)
+            x = x[:, :, 4:4 + self.center_size, 4:4 + self.center_size]
+        return x
+
+
+class AdjustAllLayer(nn.Module):
+    def __init__(self, level_names: tuple[int, ...], in_channels: tuple[int, ...], out_ch: int,
+                 center_size: int) -> None:
+        super().__init__()
+        self.level_names = level_names
+        for name, in_ch in zip(level_names, in_channels, strict=True):
+            self.add_module(f"downsample{name}", AdjustLayer(in_ch, out_ch, center_size))
+
+    def forward(self, features: list[torch.Tensor]) -> list[torch.Tensor]:
+        return [getattr(self, f"downsample{name}")(f) for name, f in zip(self.level_names, features, strict=True)]

@@ -1,0 +1,114 @@
+"""The DaDiff Siamese tracker network: backbone -> neck -> DDIM alignment -> tracking-oriented layer -> BAN.
+
+Both families are this one module with different configurations (config.py). The template branch produces
+per-level aligned features and the head's template kernels once per sequence; the search branch runs per
+frame and only needs those kernels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from .align import ReleasedAlignLayer, TrackingOrientedLayer
+from .config import ModelConfig
+from .denoiser import DDIMSampler, Denoiser
+from .head import MultiBAN
+from .neck import AdjustAllLayer
+from .resnet import AtrousResNet50
+
+
+@dataclass
+class BranchOutput:
+    """Everything one branch computes; training needs the chain states, inference only `aligned`."""
+
+    neck: list[torch.Tensor]
+    states: list[list[torch.Tensor]]  # per level: [X_start, ..., X_0]
+    aligned: list[torch.Tensor]
+
+
+def build_backbone(cfg: ModelConfig) -> nn.Module:
+    if cfg.backbone == "resnet50-atrous":
+        return AtrousResNet50()
+    if cfg.backbone == "efficientnet-lite0":
+        from .efficientnet_lite import EfficientNetLite0
+
+        return EfficientNetLite0(last_block=10, dilate_from_block=5, out_blocks=(7, 10))
+    raise ValueError(f"unknown backbone {cfg.backbone!r}")
+
+
+class DaDiffNet(nn.Module):
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        c = cfg.channels
+        self.backbone = build_backbone(cfg)
+        self.neck = AdjustAllLayer(cfg.level_names, cfg.backbone_channels, c, cfg.template_feature_size)
+        self.diffusion = Denoiser(2 * c, cfg.denoiser_ch, c, cfg.denoiser_res_blocks, cfg.denoiser_attention,
+                                  cfg.denoiser_groups)
+        self.sampler = DDIMSampler(cfg.diffusion_total_steps, cfg.ddim_steps, cfg.ddim_start_t)
+        gen = torch.Generator().manual_seed(1234)
+        e_zf = torch.randn(1, c, cfg.template_feature_size, cfg.template_feature_size, generator=gen)
+        e_xf = torch.randn(1, c, cfg.search_feature_size, cfg.search_feature_size, generator=gen)
+        if cfg.align == "released":  # the release declares the start tensors as (never trained) parameters
+            self.e_zf, self.e_xf = nn.Parameter(e_zf), nn.Parameter(e_xf)
+            self.align_track: nn.Module = ReleasedAlignLayer(c, cfg.align_heads, cfg.align_ffn)
+        else:  # ours: a fixed noise tensor stored in the checkpoint, as the paper's X_T but deterministic
+            self.register_buffer("e_zf", e_zf)
+            self.register_buffer("e_xf", e_xf)
+            self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn)
+        self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden)
+
+    def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
+        feats = self.backbone(img)
+        if self.cfg.backbone == "efficientnet-lite0":
+            feats = [torch.cat(feats, dim=1)]  # one fused stride-8 level
+        return feats
+
+    def diffuse(self, neck: list[torch.Tensor], noise: torch.Tensor) -> list[list[torch.Tensor]]:
+        """Run the sampler on every level; levels of one shape go through the denoiser as one batch."""
+        n = neck[0].shape[0]
+        if len(neck) > 1 and all(f.shape == neck[0].shape for f in neck):
+            cond = torch.cat(neck, dim=0)
+            states = self.sampler(self.diffusion, cond, noise.expand(cond.shape[0], -1, -1, -1))
+            return [[s[i * n:(i + 1) * n] for s in states] for i in range(len(neck))]
+        return [self.sampler(self.diffusion, f, noise.expand(n, -1, -1, -1)) for f in neck]
+
+    def branch(self, img: torch.Tensor, noise: torch.Tensor) -> BranchOutput:
+        neck = self.neck(self.backbone_features(img))
+        states = self.diffuse(neck, noise)
+        aligned = [self.align_track(s[-1]) for s in states]
+        return BranchOutput(neck, states, aligned)
+
+    def template(self, z: torch.Tensor) -> list[torch.Tensor]:
+        """Aligned template features per level (what the head receives)."""
+        return self.branch(z, self.e_zf).aligned
+
+    def template_kernels(self, z: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]:
+        zf = self.template(z)
+        kcls, kloc = self.head.kernels(zf)
+        return zf, kcls, kloc
+
+    def track(self, x: torch.Tensor, kcls: list[torch.Tensor],
+              kloc: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        xf = self.branch(x, self.e_xf).aligned
+        return self.head(xf, kcls, kloc)
+
+    def forward(self, z: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Template + search in one call (training and tests)."""
+        kcls, kloc = self.head.kernels(self.template(z))
+        return self.track(x, kcls, kloc)
+
+
+def build_model(cfg: ModelConfig, pretrained_backbone: bool = False) -> DaDiffNet:
+    """A new network; `pretrained_backbone` loads the ImageNet EfficientNet-Lite0 weights (dadiff-lite)."""
+    net = DaDiffNet(cfg)
+    if pretrained_backbone:
+        if cfg.backbone != "efficientnet-lite0":
+            raise ValueError(f"no bundled pretrained weights for backbone {cfg.backbone!r}")
+        from .efficientnet_lite import load_imagenet_weights
+
+        load_imagenet_weights(net.backbone)
+    return net

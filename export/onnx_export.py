@@ -1,0 +1,239 @@
+"""Export a loaded checkpoint to the dadiff model format (docs/model-format.md) and prove parity.
+
+Two static-shape graphs, template and search, each carrying every tracker setting as ONNX metadata. The
+DDIM sampler is unrolled with its timesteps baked in, so the time embeddings fold into constants and the
+graphs hold no random ops. Parity against PyTorch is measured on every export; above the tolerance the
+export fails and leaves no files behind.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import torch
+from torch import nn
+from torch.utils.flop_counter import FlopCounterMode
+
+from .checkpoint import LoadedCheckpoint
+from .network import DaDiffNet
+
+SUPPORTED_OPSETS = range(14, 21)
+DEFAULT_OPSET = 17
+PARITY_TOLERANCE = 1e-4
+TEMPLATE_FILE, SEARCH_FILE = "template.onnx", "search.onnx"
+
+
+class ExportError(Exception):
+    """Export failed; str() is one line for the user."""
+
+
+def dadiff_version() -> str:
+    try:
+        return version("dadiff")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+class TemplateGraph(nn.Module):
+    def __init__(self, net: DaDiffNet) -> None:
+        super().__init__()
+        self.net = net
+        self.eval()  # a fresh wrapper is in training mode, and export restores that mode on `net` too
+
+    def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        zf, kcls, kloc = self.net.template_kernels(z)
+        return (*zf, *kcls, *kloc)
+
+
+class SearchGraph(nn.Module):
+    def __init__(self, net: DaDiffNet) -> None:
+        super().__init__()
+        self.net = net
+        self.levels = len(net.cfg.level_names)
+        self.eval()
+
+    def forward(self, x: torch.Tensor, *kernels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.net.track(x, list(kernels[:self.levels]), list(kernels[self.levels:]))
+
+
+def io_names(levels: int) -> tuple[list[str], list[str]]:
+    """(template outputs, search kernel inputs)."""
+    kernels = [f"kcls{i}" for i in range(levels)] + [f"kloc{i}" for i in range(levels)]
+    return [f"zf{i}" for i in range(levels)] + kernels, kernels
+
+
+def model_metadata(loaded: LoadedCheckpoint, name: str, opset: int) -> dict[str, str]:
+    cfg, tr = loaded.config, loaded.config.tracker
+    hp = tr.hp_presets[tr.default_preset]
+    template_outputs, kernel_inputs = io_names(len(cfg.level_names))
+    mean = _module_constant(cfg.backbone, "PIXEL_MEAN", [0.0] * 3)
+    std = _module_constant(cfg.backbone, "PIXEL_STD", [1.0] * 3)
+    sampler = loaded.model.sampler
+    meta = {
+        "dadiff_format": "1", "name": name, "family": cfg.family, "dadiff_version": dadiff_version(),
+        "source_sha256": loaded.sha256, "source_format": loaded.source, "opset": str(opset),
+        "levels": str(len(cfg.level_names)), "exemplar_size": str(tr.exemplar_size),
+        "instance_size": str(tr.instance_size), "stride": str(tr.stride), "score_size": str(tr.score_size),
+        "point_origin": str(tr.point_origin), "context_amount": repr(tr.context_amount),
+        "min_size": repr(tr.min_size), "penalty_k": repr(hp["penalty_k"]),
+        "window_influence": repr(hp["window_influence"]), "lr": repr(hp["lr"]),
+        "hp_presets": json.dumps(tr.hp_presets, sort_keys=True), "default_preset": tr.default_preset,
+        "channel_order": "BGR", "pixel_range": "0-255", "pixel_mean": json.dumps([float(v) for v in mean]),
+        "pixel_std": json.dumps([float(v) for v in std]), "ddim_steps": str(cfg.ddim_steps),
+        "ddim_timesteps": json.dumps(sampler.timesteps), "ddim_start_t": str(sampler.start_t),
+        "template_outputs": json.dumps(template_outputs), "search_inputs": json.dumps(["x", *kernel_inputs]),
+    }
+    return meta
+
+
+def _module_constant(backbone: str, name: str, default: list[float]) -> list[float]:
+    """The in-graph pixel normalisation of a backbone (the released ResNet takes raw pixels)."""
+    if backbone == "efficientnet-lite0":
+        from . import efficientnet_lite
+
+        return list(getattr(efficientnet_lite, name))
+    return default
+
+
+@dataclass
+class ExportReport:
+    out_dir: Path
+    files: dict[str, int]                  # file name -> bytes
+    gflop_search: float
+    gflop_template: float
+    parity: dict[str, float] = field(default_factory=dict)  # output -> max-abs torch vs onnxruntime
+    seconds: float = 0.0
+    random_ops: list[str] = field(default_factory=list)
+
+    @property
+    def max_parity(self) -> float:
+        return max(self.parity.values())
+
+
+def count_gflop(module: nn.Module, *args: torch.Tensor) -> float:
+    """GFLOP (2 x multiply-accumulates) of one call, from torch's FLOP counter."""
+    trainable = [p for p in module.parameters() if p.requires_grad]
+    for p in trainable:  # the counter's module tracker trips over grad-requiring views made under no_grad
+        p.requires_grad_(False)
+    try:
+        counter = FlopCounterMode(display=False)
+        with counter, torch.no_grad():
+            module(*args)
+        return counter.get_total_flops() / 1e9
+    finally:
+        for p in trainable:
+            p.requires_grad_(True)
+
+
+def parity_inputs(cfg) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fixed pseudo-random pixel crops: deterministic, in the 0..255 range the graphs take."""
+    g = np.random.default_rng(0)
+    e, i = cfg.tracker.exemplar_size, cfg.tracker.instance_size
+    z = g.integers(0, 256, size=(1, 3, e, e)).astype(np.float32)
+    x = g.integers(0, 256, size=(1, 3, i, i)).astype(np.float32)
+    return torch.from_numpy(z), torch.from_numpy(x)
+
+
+def _export_graph(module: nn.Module, args: tuple, path: Path, inputs: list[str], outputs: list[str],
+                  opset: int, meta: dict[str, str]) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # shape branches frozen on purpose (static shapes)
+        torch.onnx.export(module, args, str(path), dynamo=False, opset_version=opset, input_names=inputs,
+                          output_names=outputs, do_constant_folding=True)
+    model = onnx.load(str(path))
+    onnx.helper.set_model_props(model, meta)
+    model.producer_name, model.producer_version = "dadiff-export", meta["dadiff_version"]
+    onnx.save(model, str(path))
+
+
+def random_ops(path: Path) -> list[str]:
+    model = onnx.load(str(path), load_external_data=False)
+    return sorted({n.op_type for n in model.graph.node if n.op_type.startswith("Random")})
+
+
+def ort_session(path: Path) -> ort.InferenceSession:
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+
+def check_parity(net: DaDiffNet, folder: Path) -> dict[str, float]:
+    """Max-abs difference of every output between PyTorch and onnxruntime on the same inputs."""
+    z, x = parity_inputs(net.cfg)
+    with torch.no_grad():
+        t_out = TemplateGraph(net)(z)
+    tmpl = ort_session(folder / TEMPLATE_FILE)
+    names = [o.name for o in tmpl.get_outputs()]
+    o_out = tmpl.run(None, {"z": z.numpy()})
+    parity = {n: float(np.abs(a - b.numpy()).max()) for n, a, b in zip(names, o_out, t_out, strict=True)}
+    search = ort_session(folder / SEARCH_FILE)
+    feeds = {"x": x.numpy()} | {n: v for n, v in zip(names, o_out, strict=True) if n.startswith("k")}
+    kernels = [torch.from_numpy(feeds[i.name]) for i in search.get_inputs()[1:]]
+    with torch.no_grad():
+        t_cls, t_loc = SearchGraph(net)(x, *kernels)
+    o_cls, o_loc = search.run(["cls", "loc"], feeds)
+    parity["cls"] = float(np.abs(o_cls - t_cls.numpy()).max())
+    parity["loc"] = float(np.abs(o_loc - t_loc.numpy()).max())
+    return parity
+
+
+def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset: int = DEFAULT_OPSET,
+                 tolerance: float = PARITY_TOLERANCE) -> ExportReport:
+    """Write out_dir/template.onnx and out_dir/search.onnx; nothing is left behind on failure."""
+    if opset not in SUPPORTED_OPSETS:
+        raise ExportError(f"unsupported opset {opset}; use {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1}")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{out}: exists and is not a folder")
+    if out.exists() and any(out.iterdir()) and not (out / SEARCH_FILE).exists():
+        raise ExportError(f"{out}: folder is not empty and holds no dadiff model; choose another -o")
+    parent = out.parent if out.parent != Path("") else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".dadiff-export-", dir=parent))
+    except OSError as e:
+        raise ExportError(f"{parent}: cannot write the output there ({e.strerror or e})") from None
+    start = time.perf_counter()
+    net = loaded.model.eval()
+    try:
+        meta = model_metadata(loaded, name, opset)
+        template_outputs, kernel_inputs = io_names(len(loaded.config.level_names))
+        z, x = parity_inputs(loaded.config)
+        with torch.no_grad():
+            template_values = TemplateGraph(net)(z)
+        kernels = template_values[len(loaded.config.level_names):]
+        _export_graph(TemplateGraph(net), (z,), staging / TEMPLATE_FILE, ["z"], template_outputs, opset,
+                      meta | {"graph": "template"})
+        _export_graph(SearchGraph(net), (x, *kernels), staging / SEARCH_FILE, ["x", *kernel_inputs],
+                      ["cls", "loc"], opset, meta | {"graph": "search"})
+        found = random_ops(staging / TEMPLATE_FILE) + random_ops(staging / SEARCH_FILE)
+        if found:
+            raise ExportError(f"the exported graphs contain random ops ({', '.join(found)}); refusing to ship")
+        parity = check_parity(net, staging)
+        worst = max(parity, key=parity.get)
+        if parity[worst] > tolerance:
+            raise ExportError(f"parity check failed: output {worst} differs by {parity[worst]:.3g} between "
+                              f"PyTorch and onnxruntime (tolerance {tolerance:g}); no files written")
+        report = ExportReport(
+            out_dir=out, files={f: (staging / f).stat().st_size for f in (TEMPLATE_FILE, SEARCH_FILE)},
+            gflop_search=count_gflop(SearchGraph(net), x, *kernels), gflop_template=count_gflop(TemplateGraph(net), z),
+            parity=parity)
+        out.mkdir(parents=True, exist_ok=True)
+        for f in (TEMPLATE_FILE, SEARCH_FILE):
+            shutil.move(str(staging / f), str(out / f))
+        report.seconds = time.perf_counter() - start
+        return report
+    except OSError as e:
+        raise ExportError(f"{out}: cannot write the model ({e.strerror or e})") from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

@@ -1,0 +1,48 @@
+"""Shared fixtures: the official fixture folder and small checkpoints made on the fly."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-ban"
+
+
+def fixture_dir() -> Path:
+    if not FIXTURES.is_dir():
+        pytest.skip(f"official fixtures not found at {FIXTURES}")
+    return FIXTURES
+
+
+@pytest.fixture(scope="session")
+def ban_shapes() -> dict[str, list[int]]:
+    with open(fixture_dir() / "dadiff_ban_state_dict_shapes.json") as f:
+        return json.load(f)
+
+
+@pytest.fixture(scope="session")
+def lite_checkpoint(tmp_path_factory) -> Path:
+    """A freshly initialised dadiff-lite checkpoint (ImageNet backbone, the rest untrained) in our format."""
+    torch = pytest.importorskip("torch")
+    from dadiff.export.checkpoint import save_checkpoint
+    from dadiff.export.config import lite_config
+    from dadiff.export.network import build_model
+
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("ckpt") / "lite.pt"
+    save_checkpoint(path, build_model(lite_config(), pretrained_backbone=True))
+    return path
+
+
+@pytest.fixture(scope="session")
+def lite_model_dir(tmp_path_factory, lite_checkpoint) -> Path:
+    """The lite checkpoint exported to a model folder (template.onnx + search.onnx)."""
+    from dadiff.export.checkpoint import load_checkpoint
+    from dadiff.export.onnx_export import export_model
+
+    out = tmp_path_factory.mktemp("models") / "lite"
+    export_model(load_checkpoint(lite_checkpoint), out, "test-lite")
+    return out
