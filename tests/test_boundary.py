@@ -13,7 +13,8 @@ FORBIDDEN = ("torch", "onnx", "dadiff.export", "torchvision")
 
 def test_importing_onboard_packages_loads_no_torch():
     code = ("import sys, dadiff.runtime, dadiff.drone, dadiff.models\n"
-            f"bad = sorted(m for m in sys.modules if m.split('.')[0] in {FORBIDDEN[:2]!r} or m.startswith('dadiff.export'))\n"
+            f"bad = sorted(m for m in sys.modules\n"
+            f"             if m.split('.')[0] in {FORBIDDEN[:2]!r} or m.startswith('dadiff.export'))\n"
             "print(','.join(bad)); sys.exit(1 if bad else 0)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, f"onboard import pulled in: {result.stdout} {result.stderr}"

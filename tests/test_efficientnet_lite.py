@@ -6,6 +6,8 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from torch import nn
+
 from dadiff.export.efficientnet_lite import (
     PIXEL_MEAN,
     PIXEL_STD,
@@ -13,7 +15,6 @@ from dadiff.export.efficientnet_lite import (
     load_imagenet_weights,
     pretrained_weights_path,
 )
-from torch import nn
 
 skimage_data = pytest.importorskip("skimage.data")
 

@@ -85,4 +85,5 @@ def test_pretrained_backbone_is_loaded():
 
     net = build_model(lite_config(), pretrained_backbone=True)
     ref = torch.load(pretrained_weights_path(), map_location="cpu", weights_only=True)
-    assert torch.equal(net.backbone.state_dict()["_blocks.10._project_conv.weight"], ref["_blocks.10._project_conv.weight"])
+    key = "_blocks.10._project_conv.weight"
+    assert torch.equal(net.backbone.state_dict()[key], ref[key])
