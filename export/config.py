@@ -51,7 +51,8 @@ class ModelConfig:
     diffusion_total_steps: int = 20
     ddim_steps: int = 2
     ddim_start_t: int | None = 1       # noise level of the start state; None = the first visited timestep
-    align: str = "released"            # "released" (LN(x + pos)) | "paper" (eq. 7)
+    align: str = "released"            # "released" (LN(x + pos)) | "paper" (eq. 7) | "none" (ablation)
+    use_dadiff: bool = True            # False: the baseline tracker, neck features go straight to the head
     align_heads: int = 8
     align_ffn: int = 2048
     tracker: TrackerConfig = field(default_factory=TrackerConfig)

@@ -58,7 +58,12 @@ class DaDiffNet(nn.Module):
         else:  # ours: a fixed noise tensor stored in the checkpoint, as the paper's X_T but deterministic
             self.register_buffer("e_zf", e_zf)
             self.register_buffer("e_xf", e_xf)
-            self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn)
+            if cfg.align == "paper":
+                self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn)
+            elif cfg.align == "none":
+                self.align_track = nn.Identity()
+            else:
+                raise ValueError(f"unknown alignment layer {cfg.align!r}")
         self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden)
 
     def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
@@ -78,6 +83,8 @@ class DaDiffNet(nn.Module):
 
     def branch(self, img: torch.Tensor, noise: torch.Tensor) -> BranchOutput:
         neck = self.neck(self.backbone_features(img))
+        if not self.cfg.use_dadiff:
+            return BranchOutput(neck, [[f] for f in neck], neck)
         states = self.diffuse(neck, noise)
         aligned = [self.align_track(s[-1]) for s in states]
         return BranchOutput(neck, states, aligned)

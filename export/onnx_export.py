@@ -111,7 +111,8 @@ class ExportReport:
     files: dict[str, int]                  # file name -> bytes
     gflop_search: float
     gflop_template: float
-    parity: dict[str, float] = field(default_factory=dict)  # output -> max-abs torch vs onnxruntime
+    parity: dict[str, float] = field(default_factory=dict)      # output -> scaled error (see parity_error)
+    parity_abs: dict[str, float] = field(default_factory=dict)  # output -> plain max-abs difference
     seconds: float = 0.0
     random_ops: list[str] = field(default_factory=list)
 
@@ -167,23 +168,34 @@ def ort_session(path: Path) -> ort.InferenceSession:
     return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
 
 
-def check_parity(net: DaDiffNet, folder: Path) -> dict[str, float]:
-    """Max-abs difference of every output between PyTorch and onnxruntime on the same inputs."""
+def parity_error(ours: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
+    """(max-abs difference, the same divided by max(1, max |ref|)).
+
+    The gate uses the second: plain max-abs where outputs are of order 1 (cls logits, the fixture's loc), and
+    relative where they are large, as a trained model's `loc` is (box distances of tens of pixels that come
+    out of exp(): float32 kernels that differ in summation order put ~1e-5 relative there, ~5e-4 absolute).
+    """
+    diff = float(np.abs(ours - ref).max())
+    return diff, diff / max(1.0, float(np.abs(ref).max()))
+
+
+def check_parity(net: DaDiffNet, folder: Path) -> dict[str, tuple[float, float]]:
+    """Per output (max-abs, scaled) difference between PyTorch and onnxruntime on the same inputs."""
     z, x = parity_inputs(net.cfg)
     with torch.no_grad():
         t_out = TemplateGraph(net)(z)
     tmpl = ort_session(folder / TEMPLATE_FILE)
     names = [o.name for o in tmpl.get_outputs()]
     o_out = tmpl.run(None, {"z": z.numpy()})
-    parity = {n: float(np.abs(a - b.numpy()).max()) for n, a, b in zip(names, o_out, t_out, strict=True)}
+    parity = {n: parity_error(a, b.numpy()) for n, a, b in zip(names, o_out, t_out, strict=True)}
     search = ort_session(folder / SEARCH_FILE)
     feeds = {"x": x.numpy()} | {n: v for n, v in zip(names, o_out, strict=True) if n.startswith("k")}
     kernels = [torch.from_numpy(feeds[i.name]) for i in search.get_inputs()[1:]]
     with torch.no_grad():
         t_cls, t_loc = SearchGraph(net)(x, *kernels)
     o_cls, o_loc = search.run(["cls", "loc"], feeds)
-    parity["cls"] = float(np.abs(o_cls - t_cls.numpy()).max())
-    parity["loc"] = float(np.abs(o_loc - t_loc.numpy()).max())
+    parity["cls"] = parity_error(o_cls, t_cls.numpy())
+    parity["loc"] = parity_error(o_loc, t_loc.numpy())
     return parity
 
 
@@ -219,15 +231,17 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
         found = random_ops(staging / TEMPLATE_FILE) + random_ops(staging / SEARCH_FILE)
         if found:
             raise ExportError(f"the exported graphs contain random ops ({', '.join(found)}); refusing to ship")
-        parity = check_parity(net, staging)
+        errors = check_parity(net, staging)
+        parity = {k: v[1] for k, v in errors.items()}
         worst = max(parity, key=parity.get)
         if parity[worst] > tolerance:
-            raise ExportError(f"parity check failed: output {worst} differs by {parity[worst]:.3g} between "
-                              f"PyTorch and onnxruntime (tolerance {tolerance:g}); no files written")
+            raise ExportError(f"parity check failed: output {worst} differs by {errors[worst][0]:.3g} "
+                              f"(scaled {parity[worst]:.3g}) between PyTorch and onnxruntime (tolerance "
+                              f"{tolerance:g}); no files written")
         report = ExportReport(
             out_dir=out, files={f: (staging / f).stat().st_size for f in (TEMPLATE_FILE, SEARCH_FILE)},
             gflop_search=count_gflop(SearchGraph(net), x, *kernels), gflop_template=count_gflop(TemplateGraph(net), z),
-            parity=parity)
+            parity=parity, parity_abs={k: v[0] for k, v in errors.items()})
         out.mkdir(parents=True, exist_ok=True)
         for f in (TEMPLATE_FILE, SEARCH_FILE):
             shutil.move(str(staging / f), str(out / f))

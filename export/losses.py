@@ -1,0 +1,43 @@
+"""Training losses: the BAN tracking loss (L_trc), the conditional eps-MSE (L_align, eq. 6)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from .denoiser import Denoiser
+
+
+def ban_cls_loss(cls: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+    """0.5 * NLL over positive points + 0.5 * NLL over negative points (label -1 is ignored)."""
+    logp = F.log_softmax(cls, dim=1)
+    pos, neg = label == 1, label == 0
+    loss_pos = -logp[:, 1][pos].mean() if pos.any() else cls.sum() * 0
+    loss_neg = -logp[:, 0][neg].mean() if neg.any() else cls.sum() * 0
+    return 0.5 * loss_pos + 0.5 * loss_neg
+
+
+def ban_iou_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+    """Linear IoU loss 1 - IoU between predicted and target (l, t, r, b) boxes at the positive points."""
+    if not (label == 1).any():
+        return loc.sum() * 0
+    p = loc.permute(0, 2, 3, 1)[label == 1]
+    t = target.permute(0, 2, 3, 1)[label == 1]
+    pl, pt, pr, pb = p.unbind(1)
+    tl, tt, tr, tb = t.unbind(1)
+    inter = (torch.minimum(pl, tl) + torch.minimum(pr, tr)) * (torch.minimum(pt, tt) + torch.minimum(pb, tb))
+    union = (pl + pr) * (pt + pb) + (tl + tr) * (tt + tb) - inter
+    iou = (inter + 1.0) / (union + 1.0)
+    return (1.0 - iou).mean()
+
+
+def align_loss(denoiser: Denoiser, alpha_bar: torch.Tensor, x0: torch.Tensor, cond: torch.Tensor,
+               generator: torch.Generator | None = None) -> torch.Tensor:
+    """E ||eps - eps_theta([X_t || N_f], t)||^2 with t uniform over the schedule and X_t noised from X_0."""
+    n = x0.shape[0]
+    t = torch.randint(0, alpha_bar.numel(), (n,), generator=generator, device=x0.device)
+    eps = torch.randn(x0.shape, generator=generator, device=x0.device)
+    ab = alpha_bar[t].view(n, 1, 1, 1)
+    xt = ab.sqrt() * x0 + (1.0 - ab).sqrt() * eps
+    pred = denoiser(torch.cat([xt, cond], dim=1), t.float())
+    return F.mse_loss(pred, eps)

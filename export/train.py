@@ -1,0 +1,379 @@
+"""`dadiff-train --config FILE.toml`: the paper's two-stage training, resumable, single process or torchrun.
+
+Stage "baseline": the Siamese tracker alone (no DaDiff block) on labelled day pairs with the BAN losses.
+Stage "dadiff": the DaDiff block inserted; L_total = l1 L_trc (day) + l2 L_adv + l3 L_align, with the
+successive discriminator judging day/night at every state of the DDIM chain and gradients flowing through
+the sampler into the denoiser and the tracking-oriented layer (paper sec. III; spec 12).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.distributed as dist
+from torch import nn
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader
+
+from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint
+from .config import ModelConfig, default_config
+from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
+from .losses import align_loss, ban_cls_loss, ban_iou_loss
+from .network import DaDiffNet, build_model
+from .train_data import CropConfig, PairStream, make_day_source
+
+DAY, NIGHT = 0.0, 1.0
+
+
+@dataclass
+class TrainConfig:
+    out: str = "runs/lite"
+    stage: str = "dadiff"                 # "baseline" | "dadiff"
+    family: str = "dadiff-lite"
+    init: str = "imagenet"                # "imagenet" | path to a checkpoint (ours) to start from
+    model: dict[str, Any] = field(default_factory=dict)   # ModelConfig overrides (align, ddim_steps, ...)
+    day: list[dict[str, Any]] = field(default_factory=lambda: [{"kind": "scenes", "split": "train"}])
+    night: str | None = None              # folder of night images/videos; None = render night from day
+    steps: int = 1000
+    batch_size: int = 16
+    workers: int = 0
+    optimizer: str = "sgd"                # "sgd" (release) | "adamw"
+    lr: float = 0.0015                    # DaDiff base lr (paper)
+    backbone_lr_mult: float = 0.1
+    warmup_steps: int = 50
+    weight_decay: float = 1e-4
+    freeze_backbone_blocks: int = 5       # EfficientNet-Lite0 blocks 0..N-1 stay ImageNet
+    disc_lr: float = 0.005                # paper: discriminator base lr 0.005, poly decay power 0.8
+    disc_poly_power: float = 0.8
+    lambda_trc: float = 1.0
+    lambda_adv: float = 0.1
+    lambda_align: float = 1.0
+    adversarial: bool = True              # ablation switches (Table IV)
+    align_loss: bool = True
+    grad_clip: float = 10.0
+    checkpoint_every: int = 100
+    seed: int = 0
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> TrainConfig:
+        try:
+            with open(path, "rb") as f:
+                raw = tomllib.load(f)
+        except FileNotFoundError:
+            raise ValueError(f"{path}: no such config file") from None
+        except tomllib.TOMLDecodeError as e:
+            raise ValueError(f"{path}: invalid TOML ({e})") from None
+        flat: dict[str, Any] = {}
+        for key, value in raw.items():
+            if isinstance(value, dict) and key in ("train", "loss", "data", "output"):
+                flat.update(value)
+            else:
+                flat[key] = value
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(flat) - known)
+        if unknown:
+            raise ValueError(f"{path}: unknown config keys: {', '.join(unknown)}")
+        cfg = cls(**flat)
+        if cfg.stage not in ("baseline", "dadiff"):
+            raise ValueError(f"{path}: stage must be 'baseline' or 'dadiff', got {cfg.stage!r}")
+        if cfg.batch_size < 2:  # BatchNorm layers (head, channel weights) need 2+ samples per process
+            raise ValueError(f"{path}: batch_size must be at least 2 per process, got {cfg.batch_size}")
+        return cfg
+
+
+def model_config(cfg: TrainConfig) -> ModelConfig:
+    base = default_config(cfg.family)
+    mc = replace(base, **cfg.model) if cfg.model else base
+    return replace(mc, use_dadiff=cfg.stage == "dadiff")
+
+
+def build_network(cfg: TrainConfig) -> DaDiffNet:
+    mc = model_config(cfg)
+    if cfg.init == "imagenet":
+        net = build_model(mc, pretrained_backbone=mc.backbone == "efficientnet-lite0")
+        for box in net.head.levels():  # start the box distances near a typical target half-size (32 crop px)
+            nn.init.constant_(box.loc.head[3].bias, math.log(32.0))
+        return net
+    net = build_model(mc)
+    loaded = load_checkpoint(cfg.init)  # strict, same keys whatever the stage
+    net.load_state_dict(loaded.model.state_dict(), strict=True)
+    return net
+
+
+def freeze_early_blocks(net: DaDiffNet, blocks: int) -> list[nn.Module]:
+    """Keep the stem and the first backbone blocks at their ImageNet weights (and BN statistics)."""
+    frozen: list[nn.Module] = []
+    if net.cfg.backbone != "efficientnet-lite0" or blocks <= 0:
+        return frozen
+    bb = net.backbone
+    frozen = [bb._conv_stem, bb._bn0, *list(bb._blocks)[:blocks]]
+    for m in frozen:
+        for p in m.parameters():
+            p.requires_grad_(False)
+    return frozen
+
+
+def param_groups(net: DaDiffNet, cfg: TrainConfig) -> list[dict[str, Any]]:
+    backbone = [p for p in net.backbone.parameters() if p.requires_grad]
+    rest = [p for n, p in net.named_parameters() if p.requires_grad and not n.startswith("backbone.")]
+    return [{"params": backbone, "lr_mult": cfg.backbone_lr_mult}, {"params": rest, "lr_mult": 1.0}]
+
+
+def make_optimizer(groups: list[dict[str, Any]], cfg: TrainConfig) -> torch.optim.Optimizer:
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(groups, lr=cfg.lr, momentum=0.9, weight_decay=cfg.weight_decay)
+    if cfg.optimizer == "adamw":
+        return torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    raise ValueError(f"unknown optimizer {cfg.optimizer!r}; expected sgd or adamw")
+
+
+def tracker_lr(cfg: TrainConfig, step: int) -> float:
+    """Linear warm-up, then cosine decay to 1 % of the base rate."""
+    if step < cfg.warmup_steps:
+        return cfg.lr * (step + 1) / cfg.warmup_steps
+    progress = (step - cfg.warmup_steps) / max(1, cfg.steps - cfg.warmup_steps)
+    return cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
+
+
+def disc_lr(cfg: TrainConfig, step: int) -> float:
+    """The paper's poly policy: lr = base * (1 - step / steps) ^ 0.8."""
+    return cfg.disc_lr * (1 - min(step, cfg.steps - 1) / cfg.steps) ** cfg.disc_poly_power
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig, rank: int = 0, world: int = 1) -> None:
+        self.cfg, self.rank, self.world = cfg, rank, world
+        torch.manual_seed(cfg.seed)
+        self.out = Path(cfg.out)
+        self.net = build_network(cfg)
+        self.frozen = freeze_early_blocks(self.net, cfg.freeze_backbone_blocks)
+        self.dadiff = cfg.stage == "dadiff"
+        self.use_adv = self.dadiff and cfg.adversarial
+        self.disc = SuccessiveDiscriminator(self.net.cfg.channels, self.net.cfg.diffusion_total_steps) \
+            if self.use_adv else None
+        self.opt = make_optimizer(param_groups(self.net, cfg), cfg)
+        self.disc_opt = torch.optim.Adam(self.disc.parameters(), lr=cfg.disc_lr, betas=(0.9, 0.99)) \
+            if self.disc is not None else None
+        self.step = 0
+        forward = TrainForward(self.net, cfg.seed * 1000 + rank)
+        self.model = DistributedDataParallel(forward, find_unused_parameters=True) if world > 1 else forward
+        self.dmodel = (DistributedDataParallel(self.disc) if world > 1 else self.disc) if self.disc else None
+
+    # ---- checkpoints -------------------------------------------------------------------------------
+    @property
+    def last_path(self) -> Path:
+        return self.out / "last.pt"
+
+    def save(self, path: Path | None = None) -> None:
+        if self.rank != 0:
+            return
+        self.out.mkdir(parents=True, exist_ok=True)
+        extra: dict[str, Any] = {"step": self.step, "optimizer": self.opt.state_dict(),
+                                 "train_config": self.cfg.__dict__}
+        if self.disc is not None:
+            extra["discriminator"] = self.disc.state_dict()
+            extra["disc_optimizer"] = self.disc_opt.state_dict()
+        save_checkpoint(path or self.last_path, self.net, **extra)
+
+    def resume(self) -> bool:
+        if not self.last_path.exists():
+            return False
+        obj = read_checkpoint_file(self.last_path)
+        self.net.load_state_dict(obj["state_dict"], strict=True)
+        self.opt.load_state_dict(obj["optimizer"])
+        if self.disc is not None and "discriminator" in obj:
+            self.disc.load_state_dict(obj["discriminator"])
+            self.disc_opt.load_state_dict(obj["disc_optimizer"])
+        self.step = int(obj["step"])
+        return True
+
+    # ---- one step ----------------------------------------------------------------------------------
+    def set_lr(self) -> None:
+        lr = tracker_lr(self.cfg, self.step)
+        for g in self.opt.param_groups:
+            g["lr"] = lr * g["lr_mult"]
+        if self.disc_opt is not None:
+            for g in self.disc_opt.param_groups:
+                g["lr"] = disc_lr(self.cfg, self.step)
+
+    def train_mode(self) -> None:
+        self.net.train()
+        for m in self.frozen:
+            m.eval()  # frozen ImageNet blocks keep their BN statistics
+        if self.disc is not None:
+            self.disc.train()
+
+    def step_on(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        cfg = self.cfg
+        self.set_lr()
+        self.train_mode()
+        night_inputs = (batch["z_night"], batch["x_night"]) if self.dadiff else ()
+        l_cls, l_loc, l_align, day_states, night_states = self.model(
+            batch["z"], batch["x"], batch["label"], batch["loc"], bool(batch["paired"].all()), *night_inputs)
+        total = cfg.lambda_trc * (l_cls + l_loc)
+        logs = {"cls": l_cls.item(), "loc": l_loc.item()}
+        if self.dadiff and cfg.align_loss:
+            total = total + cfg.lambda_align * l_align
+            logs["align"] = l_align.item()
+        ts = self.state_timesteps(len(day_states))
+        if self.use_adv:
+            l_adv = adversarial_loss(self.dmodel(night_states, ts), DAY)  # night chains should look like day
+            total = total + cfg.lambda_adv * l_adv
+            logs["adv"] = l_adv.item()
+        self.opt.zero_grad(set_to_none=True)
+        total.backward()  # under torchrun, DDP averages the gradients of every replica here
+        torch.nn.utils.clip_grad_norm_([p for g in self.opt.param_groups for p in g["params"]], cfg.grad_clip)
+        self.opt.step()
+        if self.use_adv:
+            logs["disc"] = self.discriminator_step(day_states, night_states, ts)
+        logs["total"] = total.item()
+        self.step += 1
+        return logs
+
+    def state_timesteps(self, n_states: int) -> list[int]:
+        steps = chain_timesteps(self.net.sampler.start_t, self.net.sampler.timesteps)
+        return (steps * (n_states // len(steps)))[:n_states]
+
+    def discriminator_step(self, day_states: list[torch.Tensor], night_states: list[torch.Tensor],
+                           ts: list[int]) -> float:
+        """D learns day = 0, night = 1 on every chain state (detached from the tracker)."""
+        loss = adversarial_loss(self.dmodel([s.detach() for s in day_states], ts), DAY) + \
+            adversarial_loss(self.dmodel([s.detach() for s in night_states], ts), NIGHT)
+        self.disc_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.disc_opt.step()
+        return loss.item()
+
+
+class TrainForward(nn.Module):
+    """The tracker's side of one step in a single forward, so that DistributedDataParallel can wrap it."""
+
+    def __init__(self, net: DaDiffNet, seed: int) -> None:
+        super().__init__()
+        self.net = net
+        self.gen = torch.Generator().manual_seed(seed)
+
+    def forward(self, z: torch.Tensor, x: torch.Tensor, label: torch.Tensor, loc_target: torch.Tensor, paired: bool,
+                z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
+        net = self.net
+        zb, xb = net.branch(z, net.e_zf), net.branch(x, net.e_xf)
+        cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
+        l_cls, l_loc = ban_cls_loss(cls, label), ban_iou_loss(loc, loc_target, label)
+        day_states = [s for b in (zb, xb) for level in b.states for s in level]
+        if z_night is None:
+            return l_cls, l_loc, cls.sum() * 0, day_states, []
+        zn, xn = net.branch(z_night, net.e_zf), net.branch(x_night, net.e_xf)
+        night_states = [s for b in (zn, xn) for level in b.states for s in level]
+        # L_align: recover day features from noise, conditioned on the night features of the same content
+        # (night rendered from day), or on the day features themselves when the night data is unpaired
+        losses = [align_loss(net.diffusion, net.sampler.alpha_bar, d.detach(), n if paired else d, self.gen)
+                  for db, nb in ((zb, zn), (xb, xn)) for d, n in zip(db.neck, nb.neck, strict=True)]
+        return l_cls, l_loc, torch.stack(losses).mean(), day_states, night_states
+
+
+def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
+    tr = net.cfg.tracker
+    crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
+                      score_size=tr.score_size, context=tr.context_amount)
+    stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank)
+    return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
+                      persistent_workers=cfg.workers > 0)
+
+
+def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True) -> Trainer:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    trainer = Trainer(cfg, rank, world)
+    resumed = trainer.resume()
+    loader = iter(data_loader(cfg, trainer.net, rank))
+    log_path = trainer.out / "log.csv"
+    fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "sec_per_step"]
+    if rank == 0:
+        trainer.out.mkdir(parents=True, exist_ok=True)
+        new_log = not log_path.exists() or not resumed
+        log_file = open(log_path, "w" if new_log else "a", newline="")
+        writer = csv.DictWriter(log_file, fieldnames=fields, extrasaction="ignore")
+        if new_log:
+            writer.writeheader()
+    end = cfg.steps if max_steps is None else min(cfg.steps, trainer.step + max_steps)
+    bar = None
+    if progress and rank == 0:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.steps, initial=trainer.step, desc=f"{cfg.stage}", dynamic_ncols=True)
+    try:
+        while trainer.step < end:
+            t0 = time.perf_counter()
+            logs = trainer.step_on(next(loader))
+            logs["sec_per_step"] = time.perf_counter() - t0
+            if rank == 0:
+                writer.writerow({"step": trainer.step, "lr": f"{tracker_lr(cfg, trainer.step - 1):.3g}",
+                                 **{k: f"{v:.5g}" for k, v in logs.items()}})
+                log_file.flush()
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix({k: f"{v:.3f}" for k, v in logs.items() if k != "sec_per_step"})
+            if trainer.step % cfg.checkpoint_every == 0:
+                trainer.save()
+    finally:
+        trainer.save()
+        if rank == 0:
+            if trainer.step >= cfg.steps:
+                trainer.save(trainer.out / "final.pt")
+            log_file.close()
+            if bar is not None:
+                bar.close()
+    return trainer
+
+
+def replica_divergence(net: nn.Module) -> float:
+    """Max-abs difference of every parameter from rank 0's copy (0.0 when DDP kept the replicas in sync)."""
+    flat = torch.cat([p.detach().reshape(-1) for p in net.parameters()])
+    ref = flat.clone()
+    dist.broadcast(ref, src=0)
+    diff = (flat - ref).abs().max()
+    dist.all_reduce(diff, op=dist.ReduceOp.MAX)
+    return float(diff)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="dadiff-train", description=__doc__)
+    p.add_argument("--config", required=True, help="training config (TOML); see configs/")
+    p.add_argument("--max-steps", type=int, help="stop after this many steps of this run (resume later)")
+    p.add_argument("--out", help="override the output folder")
+    args = p.parse_args(argv)
+    try:
+        cfg = TrainConfig.from_toml(args.config)
+        if args.out:
+            cfg.out = args.out
+        trainer = run(cfg, args.max_steps)
+    except (ValueError, CheckpointError) as e:
+        print(f"dadiff-train: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("dadiff-train: interrupted; resume with the same command", file=sys.stderr)
+        return 130
+    if trainer.world > 1:
+        divergence = replica_divergence(trainer.net)
+        if trainer.rank == 0:
+            print(f"dadiff-train: {trainer.world} replicas, max parameter difference {divergence:.3g}")
+        dist.destroy_process_group()
+    if trainer.rank == 0:
+        print(f"dadiff-train: step {trainer.step}/{cfg.steps}; checkpoint {trainer.last_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,288 @@
+"""Training pairs for the Siamese tracker: labelled day pairs, their night versions, and BAN targets.
+
+Day sources give (template frame, template box, search frame, search box): generated scenes from the
+training split of photographs, GOT-10k / OTB-style sequence folders, or plain image folders (both crops cut
+from one image). Night images come from the night renderer (the same content by night, which also pairs
+day and night features for L_align) or from unlabelled night image folders / videos. Everything is produced
+on the fly, so nothing needs to fit in memory.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+from dadiff.runtime.crop import crop_side, mean_colour, subwindow
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
+
+
+@dataclass(frozen=True)
+class CropConfig:
+    exemplar: int = 127
+    instance: int = 255
+    context: float = 0.5
+    stride: int = 8
+    score_size: int = 25
+    template_shift: float = 4.0      # SiamBAN: template shift 4, scale 0.05
+    template_scale: float = 0.05
+    search_shift: float = 64.0       # search shift 64, scale 0.18, blur 0.2
+    search_scale: float = 0.18
+    blur: float = 0.2
+    grey: float = 0.2
+    colour: float = 1.0
+
+    @property
+    def origin(self) -> float:
+        return -(self.score_size // 2) * self.stride
+
+
+def context_side(w: float, h: float, context: float) -> float:
+    p = context * (w + h)
+    return math.sqrt((w + p) * (h + p))
+
+
+def box_centre(box: np.ndarray) -> tuple[float, float]:
+    """Pixel-index centre of an (x, y, w, h) box, the tracker's convention (spec 8.1)."""
+    return float(box[0] + (box[2] - 1) / 2), float(box[1] + (box[3] - 1) / 2)
+
+
+@dataclass(frozen=True)
+class CropWindow:
+    centre: tuple[float, float]
+    side: int
+    out: int
+    rel: np.ndarray  # the box (cx, cy, w, h) relative to the crop centre in crop pixels (the decoder's frame)
+
+    def cut(self, frame: np.ndarray) -> np.ndarray:
+        return subwindow(frame, self.centre, self.out, self.side, mean_colour(frame))
+
+
+def jittered_window(box: np.ndarray, out: int, cfg: CropConfig, shift: float, scale: float,
+                    rng: np.random.Generator) -> CropWindow:
+    """The tracker's context crop around the box, randomly shifted (crop pixels) and rescaled."""
+    cx, cy = box_centre(box)
+    s = context_side(box[2], box[3], cfg.context) * out / cfg.exemplar
+    side = crop_side(s * math.exp(rng.uniform(-scale, scale)))
+    k = out / side
+    dx, dy = rng.uniform(-shift, shift, size=2) / k
+    centre = (cx + dx, cy + dy)
+    rel = np.array([(cx - centre[0]) * k, (cy - centre[1]) * k, box[2] * k, box[3] * k], dtype=np.float32)
+    return CropWindow(centre, side, out, rel)
+
+
+def augment(crop: np.ndarray, cfg: CropConfig, rng: np.random.Generator, grey: bool, blur: bool) -> np.ndarray:
+    img = crop.astype(np.float32)
+    if cfg.colour > 0:  # per-channel gain and an overall brightness change
+        img *= rng.uniform(0.85, 1.15, size=3).astype(np.float32) * rng.uniform(0.8, 1.2)
+    if blur:
+        sigma = rng.uniform(0.5, 1.5)
+        img = cv2.GaussianBlur(img, (0, 0), sigma)
+    if grey:
+        g = cv2.cvtColor(np.clip(img, 0, 255).astype(np.uint8), cv2.COLOR_BGR2GRAY)
+        img = np.repeat(g[:, :, None], 3, axis=2).astype(np.float32)
+    return np.clip(img, 0, 255)
+
+
+def ban_targets(rel: np.ndarray, cfg: CropConfig) -> tuple[np.ndarray, np.ndarray]:
+    """SiamBAN point targets: label 1 inside the (w/4, h/4) ellipse, 0 outside (w/2, h/2), -1 between;
+    loc = (l, t, r, b) distances of each point to the box edges."""
+    line = cfg.origin + cfg.stride * np.arange(cfg.score_size, dtype=np.float32)
+    px, py = np.meshgrid(line, line)
+    cx, cy, w, h = rel
+    d_pos = ((px - cx) / (w / 4)) ** 2 + ((py - cy) / (h / 4)) ** 2
+    d_neg = ((px - cx) / (w / 2)) ** 2 + ((py - cy) / (h / 2)) ** 2
+    label = np.full(px.shape, -1, dtype=np.int64)
+    label[d_neg > 1] = 0
+    label[d_pos < 1] = 1
+    if not (label == 1).any():  # tiny boxes: the nearest point is positive
+        label[np.unravel_index(np.argmin(d_pos), d_pos.shape)] = 1
+    x1, y1, x2, y2 = cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2
+    loc = np.stack([px - x1, py - y1, x2 - px, y2 - py]).astype(np.float32)
+    return label, loc
+
+
+def to_chw(img: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1), dtype=np.float32))
+
+
+# ---- day sources: each yields (template frame, template box, search frame, search box) -------------------
+
+
+class SceneSource:
+    """Pairs of frames from generated scenes over the training split of photographs."""
+
+    def __init__(self, split: str = "train", max_gap: int = 60) -> None:
+        from dadiff.runtime.scenes import load_photos
+
+        self.photos = load_photos(split)
+        self.max_gap = max_gap
+
+    def sample(self, rng: np.random.Generator):
+        from dadiff.runtime.scenes import Scene
+
+        scene = Scene.random(rng, self.photos, frames=self.max_gap + 1)
+        i, j = sorted(rng.integers(0, self.max_gap + 1, size=2))
+        (fi, bi), (fj, bj) = scene.render(int(i)), scene.render(int(j))
+        return fi, np.asarray(bi, np.float32), fj, np.asarray(bj, np.float32)
+
+
+def read_boxes(path: Path) -> np.ndarray:
+    rows = []
+    for line in path.read_text().splitlines():
+        parts = line.replace(",", " ").replace("\t", " ").split()
+        if parts:
+            rows.append([float(v) for v in parts[:4]])
+    return np.asarray(rows, dtype=np.float32)
+
+
+class SequenceSource:
+    """Two frames of one sequence from GOT-10k (`groundtruth.txt`) or OTB/UAV123 (`groundtruth_rect.txt`,
+    frames in `img/`) folders under a root."""
+
+    def __init__(self, root: str | Path, max_gap: int = 100) -> None:
+        self.sequences = []
+        for gt in sorted(Path(root).rglob("groundtruth*.txt")):
+            folder = gt.parent / "img" if (gt.parent / "img").is_dir() else gt.parent
+            frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
+            boxes = read_boxes(gt)
+            n = min(len(frames), len(boxes))
+            valid = [k for k in range(n) if boxes[k, 2] > 1 and boxes[k, 3] > 1 and np.isfinite(boxes[k]).all()]
+            if len(valid) >= 2:
+                self.sequences.append((frames, boxes, valid))
+        if not self.sequences:
+            raise ValueError(f"{root}: no sequence folders with groundtruth.txt / groundtruth_rect.txt and frames")
+        self.max_gap = max_gap
+
+    def sample(self, rng: np.random.Generator):
+        frames, boxes, valid = self.sequences[rng.integers(len(self.sequences))]
+        a = int(rng.integers(len(valid)))
+        near = [k for k in valid if abs(k - valid[a]) <= self.max_gap]
+        b = near[int(rng.integers(len(near)))]
+        fa, fb = cv2.imread(str(frames[valid[a]])), cv2.imread(str(frames[b]))
+        if fa is None or fb is None:
+            raise ValueError(f"unreadable frame in {frames[0].parent}")
+        return fa, boxes[valid[a]], fb, boxes[b]
+
+
+class ImageFolderSource:
+    """Both crops cut from one still image around a random region (shift/scale come from the crop jitter)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.paths = sorted(p for p in Path(root).rglob("*") if p.suffix.lower() in IMAGE_EXTENSIONS)
+        if not self.paths:
+            raise ValueError(f"{root}: no images ({', '.join(IMAGE_EXTENSIONS)})")
+
+    def sample(self, rng: np.random.Generator):
+        img = cv2.imread(str(self.paths[rng.integers(len(self.paths))]))
+        if img is None:
+            raise ValueError("unreadable image in the image folder")
+        h, w = img.shape[:2]
+        bw, bh = rng.uniform(0.05, 0.3) * w, rng.uniform(0.05, 0.3) * h
+        box = np.array([rng.uniform(0, w - bw), rng.uniform(0, h - bh), bw, bh], np.float32)
+        return img, box, img, box
+
+
+# ---- night sources: each yields one night image the size of a search crop or larger ---------------------
+
+
+class NightFolderSource:
+    """Unlabelled night images (NAT2021-train frames, any folder of images) or videos: random crops."""
+
+    def __init__(self, root: str | Path) -> None:
+        root = Path(root)
+        self.images = sorted(p for p in root.rglob("*") if p.suffix.lower() in IMAGE_EXTENSIONS)
+        self.videos = sorted(p for p in root.rglob("*") if p.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv"))
+        if not self.images and not self.videos:
+            raise ValueError(f"{root}: no night images or videos")
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        if self.images and (not self.videos or rng.random() < 0.5):
+            img = cv2.imread(str(self.images[rng.integers(len(self.images))]))
+        else:
+            cap = cv2.VideoCapture(str(self.videos[rng.integers(len(self.videos))]))
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 1
+            cap.set(cv2.CAP_PROP_POS_FRAMES, int(rng.integers(n)))
+            ok, img = cap.read()
+            cap.release()
+            img = img if ok else None
+        if img is None:
+            raise ValueError("unreadable night image or video frame")
+        return img
+
+
+def make_day_source(spec: dict):
+    kind = spec.get("kind")
+    if kind == "scenes":
+        return SceneSource(spec.get("split", "train"))
+    if kind in ("got10k", "otb", "sequences"):
+        return SequenceSource(spec["root"])
+    if kind == "images":
+        return ImageFolderSource(spec["root"])
+    raise ValueError(f"unknown day data kind {kind!r}; expected scenes, got10k, otb or images")
+
+
+@dataclass
+class Sample:
+    """One training example: day template/search crops with targets, and their night counterparts."""
+
+    z: torch.Tensor
+    x: torch.Tensor
+    label: torch.Tensor
+    loc: torch.Tensor
+    z_night: torch.Tensor
+    x_night: torch.Tensor
+
+
+class PairStream(IterableDataset):
+    """Endless stream of samples; each worker / rank draws from its own seeded generator."""
+
+    def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0) -> None:
+        super().__init__()
+        self.day_sources, self.cfg, self.seed, self.rank = day_sources, cfg, seed, rank
+        self.night_source = NightFolderSource(night) if night else None
+
+    def _night(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        from dadiff.runtime.scenes import render_night
+
+        return render_night(frame, rng)
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        info = get_worker_info()
+        worker = info.id if info else 0
+        rng = np.random.default_rng([self.seed, self.rank, worker])
+        cfg = self.cfg
+        while True:
+            source = self.day_sources[int(rng.integers(len(self.day_sources)))]
+            try:
+                fz, bz, fx, bx = source.sample(rng)
+            except ValueError:
+                continue
+            grey, blur = rng.random() < cfg.grey, rng.random() < cfg.blur
+            wz = jittered_window(bz, cfg.exemplar, cfg, cfg.template_shift, cfg.template_scale, rng)
+            wx = jittered_window(bx, cfg.instance, cfg, cfg.search_shift, cfg.search_scale, rng)
+            z, x = wz.cut(fz), wx.cut(fx)
+            label, loc = ban_targets(wx.rel, cfg)
+            if self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
+                zn, xn = wz.cut(self._night(fz, rng)), wx.cut(self._night(fx, rng))
+            else:
+                zn = self._crop_night(self.night_source.sample(rng), cfg.exemplar, rng)
+                xn = self._crop_night(self.night_source.sample(rng), cfg.instance, rng)
+            yield {"z": to_chw(augment(z, cfg, rng, grey, False)), "x": to_chw(augment(x, cfg, rng, grey, blur)),
+                   "label": torch.from_numpy(label), "loc": torch.from_numpy(loc),
+                   "z_night": to_chw(zn.astype(np.float32)), "x_night": to_chw(xn.astype(np.float32)),
+                   "paired": torch.tensor(self.night_source is None)}
+
+    @staticmethod
+    def _crop_night(img: np.ndarray, out: int, rng: np.random.Generator) -> np.ndarray:
+        h, w = img.shape[:2]
+        side = int(min(h, w) * rng.uniform(0.3, 0.9))
+        centre = (rng.uniform(side / 2, w - side / 2), rng.uniform(side / 2, h - side / 2))
+        return subwindow(img, centre, out, max(side, 1), mean_colour(img))
