@@ -1,0 +1,268 @@
+"""dadiff-run: track one object in a video file, camera, stream or image-sequence folder.
+
+User errors (bad model, unreadable video, bad init box, bad option) print one line
+`dadiff-run: error: ...` on stderr and exit with code 2. Ctrl-C (or SIGTERM) stops cleanly: every output
+is flushed and closed and the summary is printed (exit code 130).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import cv2
+from tqdm import tqdm
+
+from .errors import InputError, ModelError
+from .outputs import OutputError, Record, Sink, TrackLog, VideoSink
+from .runstats import RunStats
+from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box
+from .tracker import Tracker
+
+PROG = "dadiff-run"
+STATUS_EVERY_S = 5.0
+
+
+class UsageError(Exception):
+    """A command-line problem, reported as one line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UsageError(f"{message} (see {PROG} --help)")
+
+
+def _box_arg(text: str) -> tuple[float, float, float, float]:
+    try:
+        return parse_box(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _hp_arg(text: str) -> dict[str, str]:
+    values = {}
+    for item in filter(None, (p.strip() for p in text.split(","))):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise argparse.ArgumentTypeError(f"expected key=value pairs separated by commas, got {item!r}")
+        values[key.strip()] = value.strip()
+    return values
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog=PROG,
+        description="Track one object with a dadiff model (onnxruntime, no torch).",
+        epilog="The track log has one row per frame: frame, timestamp, x, y, w, h, score, state. Frame 0 "
+        "holds the init box as the released toolkit writes it, (x + 0.5, y + 0.5, w, h), state 'init'. "
+        "Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted (outputs are complete).",
+    )
+    parser.add_argument(
+        "--video",
+        required=True,
+        metavar="SRC",
+        help="video file, camera index (0) or device (/dev/video0), stream URL (rtsp://, "
+        "http://), or an OTB/UAV123-style image folder",
+    )
+    parser.add_argument(
+        "--init",
+        type=_box_arg,
+        metavar="x,y,w,h",
+        help="target box in the first frame (default for folders: first line of groundtruth_rect.txt)",
+    )
+    parser.add_argument(
+        "--model",
+        help="model folder written by dadiff-export (or an .onnx file in it), or a "
+        "shipped model name; default: the shipped default",
+    )
+    parser.add_argument("--preset", help="named hyper-parameter preset from the model (e.g. UAVDark70)")
+    parser.add_argument(
+        "--hp",
+        type=_hp_arg,
+        default={},
+        metavar="k=v,...",
+        help="override lr, penalty_k, window_influence, uncertain_score, lost_score, "
+        "lost_frames, search_growth, search_growth_max",
+    )
+    parser.add_argument(
+        "--provider", help="onnxruntime provider (cpu, cuda, tensorrt, openvino; default: best)"
+    )
+    parser.add_argument("--threads", type=_positive_int, help="threads per session (default: CPU count)")
+    parser.add_argument("--output", type=Path, metavar="FILE", help="track log, .csv or .jsonl")
+    parser.add_argument("--save-video", type=Path, metavar="OUT.mp4", help="annotated video (mp4v)")
+    parser.add_argument(
+        "--max-frames", type=_positive_int, metavar="N", help="stop after N frames (incl. the first)"
+    )
+    return parser
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Let SIGTERM stop the run like Ctrl-C (service managers send it); no-op outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
+def _quiet_opencv() -> Iterator[None]:
+    """Keep OpenCV/FFmpeg warnings off stderr so that errors stay one line; the user's own
+    OPENCV_LOG_LEVEL / OPENCV_FFMPEG_LOGLEVEL settings win."""
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when FFmpeg starts
+    if "OPENCV_LOG_LEVEL" in os.environ:
+        yield
+        return
+    previous = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(previous)
+
+
+def _open_sinks(args: argparse.Namespace, fps: float | None) -> list[Sink]:
+    sinks: list[Sink] = []
+    try:
+        if args.output is not None:
+            sinks.append(TrackLog(args.output))
+        if args.save_video is not None:
+            sinks.append(VideoSink(args.save_video, fps))
+    except OutputError:
+        for sink in sinks:
+            sink.close()
+        raise
+    return sinks
+
+
+def _track(args: argparse.Namespace, stats: RunStats) -> bool:
+    """Load, open, initialise, then run the loop; returns True when interrupted.
+
+    Raises the one-line errors (ModelError, InputError, SourceError, OutputError) for bad input.
+    """
+    if args.output is not None and args.output.suffix.lower() not in (".csv", ".jsonl"):
+        raise OutputError(f"{args.output}: --output must end in .csv or .jsonl")
+    tracker = Tracker.load(
+        args.model, provider=args.provider, threads=args.threads, preset=args.preset, overrides=args.hp
+    )
+    source = open_source(args.video)
+    sinks: list[Sink] = []
+    try:
+        box = args.init or source.init_box
+        if box is None:
+            where = "groundtruth_rect.txt in the folder" if source.kind == "folder" else "the source"
+            raise InputError(f"no --init x,y,w,h given and no box in {where}")
+        frames = source.frames()
+        first = next(frames, None)
+        if first is None:
+            raise SourceError(f"cannot read a frame from {source.kind} '{args.video}'")
+        x, y, w, h = box
+        init_box = (x + 0.5, y + 0.5, w, h)  # spec 8.5: the released toolkit's init convention
+        tracker.init(first.image, init_box)
+        sinks = _open_sinks(args, source.fps)
+        _emit(sinks, first, Record(init_box, 1.0, "init"))
+        stats.begin()
+        stats.add("init")
+        return _loop(tracker, source, frames, sinks, args.max_frames, stats)
+    finally:
+        stats.skipped = source.skipped
+        for sink in sinks:
+            sink.close()
+        source.close()
+
+
+def _loop(
+    tracker: Tracker,
+    source: VideoSource | FolderSource,
+    frames: Iterator[Frame],
+    sinks: Sequence[Sink],
+    max_frames: int | None,
+    stats: RunStats,
+) -> bool:
+    """Track every frame after the first; progress bar for files/folders, a status line for live sources."""
+    total = None if source.live else source.length
+    if total is not None and max_frames:
+        total = min(total, max_frames)
+    bar = tqdm(total=total, initial=1, unit="frame", disable=True if source.live else None, file=sys.stderr)
+    next_status = time.monotonic() + STATUS_EVERY_S
+    try:
+        for frame in frames:
+            if max_frames and stats.frames >= max_frames:
+                break
+            result = tracker.update(frame.image)
+            stats.skipped = source.skipped
+            stats.add(result.state, result.latency["total"])
+            _emit(sinks, frame, Record(result.box, result.score, result.state, stats.fps_recent))
+            bar.update(1)
+            bar.set_postfix(state=result.state, score=f"{result.score:.2f}", refresh=False)
+            if source.live and time.monotonic() >= next_status:
+                next_status += STATUS_EVERY_S
+                print(
+                    f"{PROG}: frame {frame.index}, {stats.fps_recent or 0:.1f} FPS, {result.state} "
+                    f"{result.score:.2f}, {stats.lost} lost, {source.skipped} skipped",
+                    file=sys.stderr,
+                    flush=True,
+                )
+    except KeyboardInterrupt:
+        return True
+    finally:
+        bar.close()
+    return False
+
+
+def _emit(sinks: Sequence[Sink], frame: Frame, record: Record) -> None:
+    for sink in sinks:
+        sink.write(frame, record)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of dadiff-run; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except UsageError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # --help
+        return exc.code if isinstance(exc.code, int) else 0
+    stats = RunStats()
+    try:
+        with _sigterm_as_interrupt(), _quiet_opencv():
+            interrupted = _track(args, stats)
+    except (ModelError, InputError, SourceError, OutputError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    print(f"{PROG}: {stats.summary(interrupted)}")
+    return 130 if interrupted else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,216 @@
+"""Tracker settings read from model metadata (docs/model-format.md), presets and user overrides.
+
+Every number the tracker uses comes from here, so a model carries its own geometry and defaults. The
+lost/found thresholds are optional metadata keys; their runtime defaults live in `LOST_DEFAULTS` only.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
+
+from .errors import InputError, ModelError
+
+FORMAT_VERSION = "1"
+HP_KEYS = ("lr", "penalty_k", "window_influence")
+GEOMETRY_KEYS = (
+    "exemplar_size",
+    "instance_size",
+    "stride",
+    "score_size",
+    "point_origin",
+    "context_amount",
+    "min_size",
+)
+REQUIRED_KEYS = ("dadiff_format", *GEOMETRY_KEYS, *HP_KEYS)
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Crop sizes and score-map layout of one model."""
+
+    exemplar_size: int
+    instance_size: int
+    stride: float
+    score_size: int
+    point_origin: float
+    context_amount: float
+    min_size: float
+    channel_order: str = "BGR"
+
+
+@dataclass(frozen=True)
+class Params:
+    """Tunable tracking parameters: released hyper-parameters plus lost/found thresholds.
+
+    `uncertain_score`: below it a frame is reported 'uncertain'.
+    `lost_score`, `lost_frames`: that many consecutive frames below `lost_score` make the state 'lost'.
+    `search_growth`, `search_growth_max`: while lost, the search region grows by this factor per frame,
+    up to this multiple of its normal size.
+    """
+
+    lr: float
+    penalty_k: float
+    window_influence: float
+    uncertain_score: float = 0.5
+    lost_score: float = 0.25
+    lost_frames: int = 3
+    search_growth: float = 1.25
+    search_growth_max: float = 2.5
+
+
+LOST_KEYS = tuple(f.name for f in fields(Params) if f.name not in HP_KEYS)
+TUNABLE_KEYS = (*HP_KEYS, *LOST_KEYS)
+LOST_DEFAULTS = {k: getattr(Params(0.0, 0.0, 0.0), k) for k in LOST_KEYS}
+
+# (low, high) inclusive bounds; None = unbounded.
+_BOUNDS: dict[str, tuple[float | None, float | None]] = {
+    "lr": (0.0, 1.0),
+    "penalty_k": (0.0, None),
+    "window_influence": (0.0, 1.0),
+    "uncertain_score": (0.0, 1.0),
+    "lost_score": (0.0, 1.0),
+    "lost_frames": (1, None),
+    "search_growth": (1.0, None),
+    "search_growth_max": (1.0, None),
+}
+
+
+def _as_number(raw: object, integer: bool) -> float | int | None:
+    """Parse a metadata/override value; None when it is not a finite number (or not integral)."""
+    try:
+        value = float(raw)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    if not math.isfinite(value):
+        return None
+    if integer:
+        return int(value) if value.is_integer() else None
+    return value
+
+
+def _meta_number(meta: Mapping[str, str], key: str, source: str, integer: bool = False) -> float | int:
+    if key not in meta:
+        raise ModelError(f"{source}: metadata key '{key}' is missing")
+    value = _as_number(meta[key], integer)
+    if value is None:
+        kind = "an integer" if integer else "a number"
+        raise ModelError(f"{source}: metadata key '{key}' is {meta[key]!r}, expected {kind}")
+    return value
+
+
+def parse_geometry(meta: Mapping[str, str], source: str) -> Geometry:
+    """Read and sanity-check the geometry keys; `source` names the file in error messages."""
+    if "dadiff_format" not in meta:
+        raise ModelError(
+            f"{source}: metadata key 'dadiff_format' is missing "
+            "(not a dadiff model; write it with dadiff-export)"
+        )
+    if str(meta["dadiff_format"]).strip() != FORMAT_VERSION:
+        raise ModelError(
+            f"{source}: metadata key 'dadiff_format' is {meta['dadiff_format']!r}; "
+            f"this runtime reads format {FORMAT_VERSION}"
+        )
+    ints = {"exemplar_size", "instance_size", "score_size"}
+    values = {k: _meta_number(meta, k, source, integer=k in ints) for k in GEOMETRY_KEYS}
+    for key in ("exemplar_size", "instance_size", "score_size", "stride"):
+        if values[key] <= 0:
+            raise ModelError(f"{source}: metadata key '{key}' must be positive, got {meta[key]!r}")
+    for key in ("context_amount", "min_size"):
+        if values[key] < 0:
+            raise ModelError(f"{source}: metadata key '{key}' must not be negative, got {meta[key]!r}")
+    order = str(meta.get("channel_order", "BGR")).strip().upper()
+    if order not in ("BGR", "RGB"):
+        raise ModelError(
+            f"{source}: metadata key 'channel_order' is {meta['channel_order']!r}, expected BGR or RGB"
+        )
+    pixel_range = str(meta.get("pixel_range", "0-255")).replace(" ", "")
+    if pixel_range != "0-255":
+        raise ModelError(
+            f"{source}: metadata key 'pixel_range' is {meta['pixel_range']!r}; this runtime feeds 0-255"
+        )
+    return Geometry(channel_order=order, **values)  # type: ignore[arg-type]
+
+
+def presets(meta: Mapping[str, str], source: str) -> dict[str, dict[str, float]]:
+    """Named presets from the JSON `hp_presets` key ({} when the model has none)."""
+    raw = meta.get("hp_presets")
+    if raw is None or not str(raw).strip():
+        return {}
+    try:
+        table = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise ModelError(f"{source}: metadata key 'hp_presets' is not valid JSON ({exc.msg})") from None
+    if not isinstance(table, dict) or not all(isinstance(v, dict) for v in table.values()):
+        raise ModelError(f"{source}: metadata key 'hp_presets' must map preset names to objects")
+    return table
+
+
+def _apply(
+    values: dict[str, float | int],
+    updates: Mapping[str, object],
+    fail: Callable[[str], Exception],
+    what: str,
+    strict: bool,
+) -> None:
+    """Merge `updates` into `values`, parsing and bound-checking each tunable key."""
+    for key, raw in updates.items():
+        if key not in TUNABLE_KEYS:
+            if strict:
+                raise fail(f"unknown {what} '{key}' (known: {', '.join(TUNABLE_KEYS)})")
+            continue
+        integer = key == "lost_frames"
+        value = _as_number(raw, integer)
+        if value is None:
+            kind = "an integer" if integer else "a number"
+            raise fail(f"{what} '{key}' is {raw!r}, expected {kind}")
+        low, high = _BOUNDS[key]
+        if (low is not None and value < low) or (high is not None and value > high):
+            span = f"[{low}, {high}]" if high is not None else f">= {low}"
+            raise fail(f"{what} '{key}' is {value}, expected {span}")
+        values[key] = value
+
+
+def resolve_params(
+    meta: Mapping[str, str],
+    source: str,
+    preset: str | None = None,
+    overrides: Mapping[str, object] | None = None,
+) -> Params:
+    """Metadata values (or runtime defaults), then the named preset, then the overrides, in that order."""
+    for key in HP_KEYS:
+        if key not in meta:
+            raise ModelError(f"{source}: metadata key '{key}' is missing")
+    values: dict[str, float | int] = dict(LOST_DEFAULTS)
+    _apply(
+        values,
+        {k: meta[k] for k in TUNABLE_KEYS if k in meta},
+        lambda m: ModelError(f"{source}: {m}"),
+        "metadata key",
+        strict=True,
+    )
+    if preset is not None:
+        table = presets(meta, source)
+        if preset not in table:
+            known = ", ".join(sorted(table)) or "none"
+            raise InputError(f"unknown preset '{preset}' (this model has: {known})")
+        _apply(
+            values,
+            table[preset],
+            lambda m: ModelError(f"{source}: preset '{preset}': {m}"),
+            "key",
+            strict=False,
+        )
+    if overrides:
+        _apply(values, overrides, InputError, "override", strict=True)
+    return Params(**values)  # type: ignore[arg-type]
+
+
+def check_metadata(meta: Mapping[str, str], source: str) -> None:
+    """Raise ModelError naming `source` and the key when the metadata cannot drive the tracker."""
+    parse_geometry(meta, source)
+    resolve_params(meta, source)
+    for name in presets(meta, source):
+        resolve_params(meta, source, preset=name)

@@ -1,0 +1,172 @@
+"""One-pass evaluation (OPE) metrics, computed exactly as the pysot toolkit does (spec section 9).
+
+Per sequence, every frame counts, frame 0 included (its result is the init box), and the curves are
+divided by the number of ground-truth frames. Invalid ground truth follows the toolkit too:
+
+- success: a frame whose GT width or height is not > 0 (NaN included) gets IoU -1, a failure at every
+  threshold. A NaN in the prediction gives a NaN IoU, also a failure.
+- precision: a frame whose GT centre has a coordinate <= 0 or NaN gets distance -1, a hit at every
+  threshold. Normalised precision applies the same rule to the GT centre divided by the GT size.
+
+Thresholds are built with the toolkit's own expressions (`np.arange(0, 1.05, 0.05)`, ...), floating-point
+error included, because success uses a strict `>` and a value such as 0.3 sits right on a threshold.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+SUCCESS_THRESHOLDS = np.arange(0, 1.05, 0.05)  # 21 IoU thresholds, strict >
+PRECISION_THRESHOLDS = np.arange(0, 51, 1)  # centre error in pixels, <=
+NORM_THRESHOLDS = np.arange(0, 51, 1) / 100  # centre error in GT sizes, <=
+PRECISION_INDEX = 20  # 20 px, and 0.20 for the toolkit's normalised precision
+
+_NORM_EPS = 1e-16  # the toolkit's guard against a zero GT size
+
+
+def as_boxes(boxes: object, what: str = "boxes") -> np.ndarray:
+    """(N, 4) float64 array of (x, y, w, h) rows; raises ValueError naming `what` otherwise."""
+    array = np.asarray(boxes, dtype=np.float64)
+    if array.ndim == 1 and array.size == 0:
+        array = array.reshape(0, 4)
+    if array.ndim != 2 or array.shape[1] != 4:
+        raise ValueError(f"{what} must be an (N, 4) array of x, y, w, h rows, got shape {array.shape}")
+    return array
+
+
+def _pair(gt: object, pred: object) -> tuple[np.ndarray, np.ndarray]:
+    g, p = as_boxes(gt, "ground truth"), as_boxes(pred, "prediction")
+    if len(g) != len(p):
+        raise ValueError(f"prediction has {len(p)} boxes, ground truth has {len(g)}")
+    if len(g) == 0:
+        raise ValueError("a sequence needs at least one frame")
+    return g, p
+
+
+def iou(gt: object, pred: object) -> np.ndarray:
+    """Per-frame IoU of boxes spanning [x, x+w] x [y, y+h], clipped to [0, 1]; -1 where the GT is invalid."""
+    g, p = _pair(gt, pred)
+    out = np.full(len(g), -1.0)
+    with np.errstate(invalid="ignore"):
+        valid = np.sum(g[:, 2:] > 0, axis=1) == 2
+    g, p = g[valid], p[valid]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        left = np.maximum(g[:, 0], p[:, 0])
+        right = np.minimum(g[:, 0] + g[:, 2], p[:, 0] + p[:, 2])
+        top = np.maximum(g[:, 1], p[:, 1])
+        bottom = np.minimum(g[:, 1] + g[:, 3], p[:, 1] + p[:, 3])
+        inter = np.maximum(0, right - left) * np.maximum(0, bottom - top)
+        union = g[:, 2] * g[:, 3] + p[:, 2] * p[:, 3] - inter
+        out[valid] = np.maximum(np.minimum(1, inter / union), 0)
+    return out
+
+
+def centres(boxes: object) -> np.ndarray:
+    """(N, 2) centres in the toolkit's convention, (x + (w - 1)/2, y + (h - 1)/2)."""
+    b = as_boxes(boxes)
+    return np.stack([b[:, 0] + (b[:, 2] - 1) / 2, b[:, 1] + (b[:, 3] - 1) / 2], axis=1)
+
+
+def _distances(gt_c: np.ndarray, pred_c: np.ndarray) -> np.ndarray:
+    out = np.full(len(gt_c), -1.0)
+    with np.errstate(invalid="ignore"):
+        valid = np.sum(gt_c > 0, axis=1) == 2
+    out[valid] = np.sqrt(np.sum((gt_c[valid] - pred_c[valid]) ** 2, axis=1))
+    return out
+
+
+def centre_errors(gt: object, pred: object) -> np.ndarray:
+    """Per-frame centre distance in pixels; -1 (a hit) where a GT centre coordinate is <= 0 or NaN."""
+    g, p = _pair(gt, pred)
+    return _distances(centres(g), centres(p))
+
+
+def norm_centre_errors(gt: object, pred: object) -> np.ndarray:
+    """Centre distance after dividing both centres by the GT (w, h) (+1e-16); -1 as in `centre_errors`."""
+    g, p = _pair(gt, pred)
+    size = g[:, 2:] + _NORM_EPS
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        return _distances(centres(g) / size, centres(p) / size)
+
+
+def _rate_above(values: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return np.array([np.sum(values > t) for t in thresholds], dtype=np.float64) / len(values)
+
+
+def _rate_within(values: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return np.array([np.sum(values <= t) for t in thresholds], dtype=np.float64) / len(values)
+
+
+def success_curve(gt: object, pred: object) -> np.ndarray:
+    """Fraction of frames with IoU > each of the 21 `SUCCESS_THRESHOLDS`."""
+    return _rate_above(iou(gt, pred), SUCCESS_THRESHOLDS)
+
+
+def precision_curve(gt: object, pred: object) -> np.ndarray:
+    """Fraction of frames with centre error <= 0, 1, ..., 50 px."""
+    return _rate_within(centre_errors(gt, pred), PRECISION_THRESHOLDS)
+
+
+def norm_precision_curve(gt: object, pred: object) -> np.ndarray:
+    """Fraction of frames with normalised centre error <= 0, 0.01, ..., 0.50."""
+    return _rate_within(norm_centre_errors(gt, pred), NORM_THRESHOLDS)
+
+
+@dataclass(frozen=True)
+class SequenceCurves:
+    """The three OPE curves of one sequence."""
+
+    success: np.ndarray
+    precision: np.ndarray
+    norm_precision: np.ndarray
+
+    @classmethod
+    def from_boxes(cls, gt: object, pred: object) -> SequenceCurves:
+        g, p = _pair(gt, pred)
+        return cls(success_curve(g, p), precision_curve(g, p), norm_precision_curve(g, p))
+
+
+@dataclass(frozen=True)
+class Scores:
+    """A tracker's scores over a set of sequences, each sequence weighted equally.
+
+    `success`: area under the success plot (the mean of the mean curve over its 21 thresholds).
+    `precision`: the mean precision curve at 20 px.
+    `norm_precision`: the paper's normalised precision, the area under the normalised precision plot
+    over [0, 0.5] (the mean of the mean curve over its 51 thresholds).
+    `norm_precision_at_20`: the toolkit's normalised precision, the mean curve at 0.20.
+    """
+
+    success: float
+    precision: float
+    norm_precision: float
+    norm_precision_at_20: float
+    success_curve: np.ndarray
+    precision_curve: np.ndarray
+    norm_precision_curve: np.ndarray
+    sequences: int
+
+
+def summarise(curves: Iterable[SequenceCurves]) -> Scores:
+    """Average per-sequence curves into `Scores` (raises ValueError when there are none)."""
+    items = list(curves)
+    if not items:
+        raise ValueError("no sequences to score")
+    succ = np.mean([c.success for c in items], axis=0)
+    prec = np.mean([c.precision for c in items], axis=0)
+    norm = np.mean([c.norm_precision for c in items], axis=0)
+    return Scores(
+        success=float(np.mean(succ)),
+        precision=float(prec[PRECISION_INDEX]),
+        norm_precision=float(np.mean(norm)),
+        norm_precision_at_20=float(norm[PRECISION_INDEX]),
+        success_curve=succ,
+        precision_curve=prec,
+        norm_precision_curve=norm,
+        sequences=len(items),
+    )

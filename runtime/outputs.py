@@ -1,0 +1,118 @@
+"""Where dadiff-run sends each frame's result: a CSV/JSONL track log and an annotated video.
+
+Each sink has `write(frame, record)` and `close()`; other sinks (a MAVLink link, say) plug in the same way.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from .sources import Frame
+
+LOG_FIELDS = ("frame", "timestamp", "x", "y", "w", "h", "score", "state")
+STATE_COLOURS = {
+    "tracking": (0, 200, 0),
+    "uncertain": (0, 200, 255),
+    "lost": (0, 0, 255),
+    "init": (255, 160, 0),
+}
+
+
+class OutputError(Exception):
+    """An output file cannot be written (one-line message)."""
+
+
+@dataclass(frozen=True)
+class Record:
+    """What is reported for one frame (frame 0 holds the init box, state 'init')."""
+
+    box: tuple[float, float, float, float]
+    score: float
+    state: str
+    fps: float | None = None
+
+
+class Sink(Protocol):
+    def write(self, frame: Frame, record: Record) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class TrackLog:
+    """One row per frame: frame, timestamp, x, y, w, h, score, state; CSV or JSON Lines by file suffix.
+
+    Line-buffered so that a crash or power cut loses at most the current line.
+    """
+
+    def __init__(self, path: Path) -> None:
+        suffix = path.suffix.lower()
+        if suffix not in (".csv", ".jsonl"):
+            raise OutputError(f"{path}: --output must end in .csv or .jsonl")
+        self.path, self._jsonl = path, suffix == ".jsonl"
+        try:
+            self._file = path.open("w", newline="" if not self._jsonl else None, buffering=1)
+        except OSError as exc:
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        self._csv = None if self._jsonl else csv.writer(self._file, lineterminator="\n")
+        if self._csv is not None:
+            self._csv.writerow(LOG_FIELDS)
+
+    def write(self, frame: Frame, record: Record) -> None:
+        x, y, w, h = (round(float(v), 3) for v in record.box)
+        row = (frame.index, round(frame.timestamp, 6), x, y, w, h, round(record.score, 5), record.state)
+        if self._csv is not None:
+            self._csv.writerow(row)
+        else:
+            self._file.write(json.dumps(dict(zip(LOG_FIELDS, row, strict=True))) + "\n")
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def draw_overlay(image: np.ndarray, record: Record) -> np.ndarray:
+    """Box coloured by state, with score, state and FPS written above it (draws in place)."""
+    colour = STATE_COLOURS.get(record.state, (255, 255, 255))
+    x, y, w, h = record.box
+    cv2.rectangle(image, (round(x), round(y)), (round(x + w), round(y + h)), colour, 2)
+    text = f"{record.state} {record.score:.2f}"
+    if record.fps:
+        text += f"  {record.fps:.0f} FPS"
+    origin = (max(0, round(x)), max(14, round(y) - 6))
+    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+    return image
+
+
+class VideoSink:
+    """Annotated mp4 (fourcc mp4v) at the source frame rate; opened on the first frame to learn its size."""
+
+    def __init__(self, path: Path, fps: float | None) -> None:
+        if not path.parent.is_dir():
+            raise OutputError(f"{path}: folder {path.parent} does not exist")
+        self.path, self.fps = path, fps or 30.0
+        self._writer: cv2.VideoWriter | None = None
+        self._size: tuple[int, int] | None = None
+
+    def write(self, frame: Frame, record: Record) -> None:
+        image = frame.image if frame.image.ndim == 3 else cv2.cvtColor(frame.image, cv2.COLOR_GRAY2BGR)
+        if self._writer is None:
+            self._size = (image.shape[1], image.shape[0])
+            self._writer = cv2.VideoWriter(
+                str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self._size
+            )
+            if not self._writer.isOpened():
+                raise OutputError(f"{self.path}: cannot write video (mp4v)")
+        if (image.shape[1], image.shape[0]) != self._size:
+            image = cv2.resize(image, self._size)
+        self._writer.write(draw_overlay(image, record))
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.release()

@@ -1,0 +1,54 @@
+"""Counters and timing for a dadiff-run session, and its one-paragraph summary."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+class RunStats:
+    """Frames seen, lost and skipped; tracker latencies; end-to-end throughput."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.lost = 0
+        self.skipped = 0
+        self.latencies: list[float] = []
+        self.fps_recent: float | None = None
+        self.begin()
+
+    def begin(self) -> None:
+        """Start the clock (at the first frame, so that model loading is not counted)."""
+        self.started = time.perf_counter()
+        self._window_start, self._window_frames = self.started, 0
+
+    def add(self, state: str, latency: float | None = None) -> None:
+        """Count one processed frame (latency None for the init frame)."""
+        self.frames += 1
+        self.lost += state == "lost"
+        if latency is not None:
+            self.latencies.append(latency)
+        self._window_frames += 1
+        now = time.perf_counter()
+        if now - self._window_start >= 1.0:
+            self.fps_recent = self._window_frames / (now - self._window_start)
+            self._window_start, self._window_frames = now, 0
+        elif self.fps_recent is None and now > self._window_start:
+            self.fps_recent = self._window_frames / (now - self._window_start)
+
+    @property
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.started
+
+    def summary(self, interrupted: bool = False) -> str:
+        elapsed = max(self.elapsed, 1e-9)
+        line = f"{self.frames} frames, {self.lost} lost, {self.skipped} skipped"
+        line += f"; mean {len(self.latencies) / elapsed:.1f} FPS end to end"
+        if self.latencies:
+            lat = np.asarray(self.latencies) * 1000
+            p50, p95 = np.percentile(lat, [50, 95])
+            line += f"; tracker {1000 / lat.mean():.1f} FPS, latency p50 {p50:.2f} ms, p95 {p95:.2f} ms"
+        if interrupted:
+            line += " (interrupted)"
+        return line

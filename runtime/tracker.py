@@ -1,0 +1,152 @@
+"""The tracker: released SiamBAN pre/post-processing (spec section 8) around any backend.
+
+Differences from the released tracker, all switchable through parameters:
+- a lost/found state (runtime/lost.py): while lost, box centre and size stay where they were and the
+  search region grows; `lost_score=0` turns this off and gives the released behaviour exactly.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dadiff.models import ModelNotFoundError, resolve
+
+from .backend import Backend
+from .config import Params, parse_geometry, resolve_params
+from .crop import crop_side, mean_colour, subwindow
+from .decode import Decoder
+from .errors import InputError, ModelError
+from .frames import as_image, to_blob
+from .lost import LOST, LostMonitor
+from .onnx_backend import OnnxBackend
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """One frame's output. `box` is (x, y, w, h) in frame pixels; `score` the raw foreground
+    probability of the chosen cell; `latency` seconds per stage (crop, search, post, total)."""
+
+    box: tuple[float, float, float, float]
+    score: float
+    state: str
+    latency: dict[str, float] = field(default_factory=dict)
+
+
+def _check_box(box: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:
+    try:
+        x, y, w, h = (float(v) for v in box)
+    except (TypeError, ValueError):
+        raise InputError(f"init box must be four numbers (x, y, w, h), got {box!r}") from None
+    if not all(math.isfinite(v) for v in (x, y, w, h)):
+        raise InputError(f"init box must be finite, got {box!r}")
+    if w <= 0 or h <= 0:
+        raise InputError(f"init box has zero or negative size (w={w:g}, h={h:g})")
+    if x >= width or y >= height or x + w <= 0 or y + h <= 0:
+        raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) lies outside the {width}x{height} frame")
+    return x, y, w, h
+
+
+class Tracker:
+    """Single-object tracker. `init` once per target (or again to re-target), then `update` per frame."""
+
+    def __init__(
+        self,
+        backend: Backend,
+        *,
+        preset: str | None = None,
+        overrides: Mapping[str, object] | None = None,
+    ) -> None:
+        self.backend = backend
+        source = str(getattr(backend, "name", type(backend).__name__))
+        meta = dict(backend.meta)
+        self.geometry = parse_geometry(meta, source)
+        self.params: Params = resolve_params(meta, source, preset, overrides)
+        g = self.geometry
+        self._decode = Decoder(g.score_size, g.stride, g.point_origin)
+        self._monitor = LostMonitor(self.params)
+        self._feeds: dict[str, np.ndarray] | None = None
+        self._centre = (0.0, 0.0)
+        self._size = (0.0, 0.0)
+        self._fill: tuple[float, ...] = ()
+
+    @classmethod
+    def load(
+        cls,
+        model: str | Path | None = None,
+        *,
+        provider: str | None = None,
+        threads: int | None = None,
+        preset: str | None = None,
+        overrides: Mapping[str, object] | None = None,
+    ) -> Tracker:
+        """Tracker on onnxruntime for a model folder (or an .onnx in it), a shipped name, or the default."""
+        try:
+            folder = resolve(model)
+        except ModelNotFoundError as exc:
+            raise ModelError(str(exc)) from None
+        backend = OnnxBackend(folder, provider=provider, threads=threads)
+        return cls(backend, preset=preset, overrides=overrides)
+
+    @property
+    def state(self) -> str:
+        """State after the last update ('tracking' right after init)."""
+        return self._monitor.state
+
+    def _context_side(self) -> float:
+        w, h = self._size
+        pad = self.geometry.context_amount * (w + h)
+        return math.sqrt((w + pad) * (h + pad))
+
+    def _crop(self, image: np.ndarray, out_size: int, side: float) -> np.ndarray:
+        patch = subwindow(image, self._centre, out_size, crop_side(side), self._fill)
+        return to_blob(patch, self.geometry.channel_order)
+
+    def init(self, frame: np.ndarray, box: Sequence[float]) -> None:
+        """Start tracking `box` = (x, y, w, h) in `frame`; runs the template graph once.
+
+        As in the released tracker the centre is x + (w − 1)/2 (spec 8.1).
+        """
+        image = as_image(frame)
+        x, y, w, h = _check_box(box, image.shape[1], image.shape[0])
+        self._centre = (x + (w - 1) / 2, y + (h - 1) / 2)
+        self._size = (w, h)
+        self._fill = mean_colour(image)
+        z = self._crop(image, self.geometry.exemplar_size, self._context_side())
+        self._feeds = self.backend.template(z)
+        self._monitor = LostMonitor(self.params)
+
+    def update(self, frame: np.ndarray) -> TrackResult:
+        """Track one frame; the search graph runs once."""
+        if self._feeds is None:
+            raise RuntimeError("Tracker.update() called before init()")
+        t0 = time.perf_counter()
+        image = as_image(frame)
+        g, p = self.geometry, self.params
+        growth = self._monitor.growth
+        s_z = self._context_side()
+        scale = g.exemplar_size / s_z / growth  # crop pixels per frame pixel
+        x = self._crop(image, g.instance_size, s_z * g.instance_size / g.exemplar_size * growth)
+        t1 = time.perf_counter()
+        cls, loc = self.backend.search(x, self._feeds)
+        t2 = time.perf_counter()
+        w, h = self._size
+        det = self._decode(cls, loc, w * scale, h * scale, p.penalty_k, p.window_influence)
+        state = self._monitor.observe(det.score)
+        cx, cy = self._centre
+        if state != LOST:
+            lr = det.penalty * det.score * p.lr
+            cx, cy = cx + det.dx / scale, cy + det.dy / scale
+            w, h = w * (1 - lr) + det.w / scale * lr, h * (1 - lr) + det.h / scale * lr
+        img_h, img_w = image.shape[:2]
+        cx, cy = max(0.0, min(cx, img_w)), max(0.0, min(cy, img_h))
+        w, h = max(g.min_size, min(w, img_w)), max(g.min_size, min(h, img_h))
+        self._centre, self._size = (cx, cy), (w, h)
+        t3 = time.perf_counter()
+        latency = {"crop": t1 - t0, "search": t2 - t1, "post": t3 - t2, "total": t3 - t0}
+        return TrackResult((cx - w / 2, cy - h / 2, w, h), det.score, state, latency)

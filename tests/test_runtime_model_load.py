@@ -1,0 +1,111 @@
+"""Model resolution, loading errors, metadata checks, providers."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from dadiff import models
+from dadiff.runtime import InputError, ModelError, OnnxBackend, Tracker
+from dadiff.runtime.config import LOST_DEFAULTS
+from dadiff.runtime.onnx_backend import choose_providers
+from runtime_models import write_corr_model
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_corr_model(tmp_path_factory.mktemp("good") / "m")
+
+
+def _variant(tmp_path: Path, **meta: str | None) -> Path:
+    return write_corr_model(tmp_path / "variant", meta=meta)
+
+
+def test_no_default_model_shipped_yet() -> None:
+    assert models.list_models() == []
+    with pytest.raises(models.ModelNotFoundError, match="no trained default model is shipped yet.*--model"):
+        models.resolve(None)
+    with pytest.raises(ModelError, match="no trained default model is shipped yet"):
+        Tracker.load()
+
+
+def test_resolve_paths(good: Path, tmp_path: Path) -> None:
+    assert models.resolve(good) == good
+    assert models.resolve(str(good / "template.onnx")) == good
+    with pytest.raises(models.ModelNotFoundError, match="model 'nope' not found.*shipped: none yet"):
+        models.resolve("nope")
+    text = tmp_path / "notes.txt"
+    text.write_text("x")
+    with pytest.raises(models.ModelNotFoundError, match="not a model folder or an .onnx file"):
+        models.resolve(text)
+
+
+def test_missing_graph_file(good: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "half"
+    folder.mkdir()
+    shutil.copy(good / "template.onnx", folder)
+    with pytest.raises(ModelError, match=r"search\.onnx: file not found"):
+        OnnxBackend(folder)
+
+
+def test_corrupt_file(good: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "corrupt"
+    shutil.copytree(good, folder)
+    (folder / "search.onnx").write_bytes(b"\x08\x07garbage" * 50)
+    with pytest.raises(ModelError, match=r"search\.onnx: not a loadable ONNX model") as info:
+        OnnxBackend(folder)
+    assert "\n" not in str(info.value)
+
+
+def test_model_without_metadata(tmp_path: Path) -> None:
+    from runtime_models import metadata
+
+    folder = _variant(tmp_path, **{key: None for key in metadata("search")})
+    with pytest.raises(ModelError, match=r"template\.onnx: metadata key 'dadiff_format' is missing"):
+        OnnxBackend(folder)
+
+
+@pytest.mark.parametrize(
+    ("meta", "message"),
+    [
+        ({"stride": None}, r"template\.onnx: metadata key 'stride' is missing"),
+        ({"score_size": "25.5"}, "metadata key 'score_size' is '25.5', expected an integer"),
+        ({"dadiff_format": "2"}, "this runtime reads format 1"),
+        ({"hp_presets": "{not json"}, "'hp_presets' is not valid JSON"),
+        ({"lost_frames": "0"}, "metadata key 'lost_frames' is 0"),
+        ({"lr": "1.5"}, r"metadata key 'lr' is 1.5, expected \[0.0, 1.0\]"),
+        ({"channel_order": "BRG"}, "expected BGR or RGB"),
+        (
+            {"instance_size": "256"},
+            r"search\.onnx: x has shape \[1, 3, 255, 255\], expected \[1, 3, 256, 256\]",
+        ),
+    ],
+)
+def test_bad_metadata(tmp_path: Path, meta: dict, message: str) -> None:
+    with pytest.raises(ModelError, match=message):
+        OnnxBackend(_variant(tmp_path, **meta))
+
+
+def test_graph_files_must_agree(good: Path, tmp_path: Path) -> None:
+    other = _variant(tmp_path, min_size="20")
+    shutil.copy(good / "template.onnx", other / "template.onnx")
+    with pytest.raises(ModelError, match="disagree on metadata key 'min_size'"):
+        OnnxBackend(other)
+
+
+def test_lost_thresholds_from_metadata(tmp_path: Path) -> None:
+    tracker = Tracker(OnnxBackend(_variant(tmp_path, lost_score="0.1", search_growth="1.5"), threads=1))
+    assert (tracker.params.lost_score, tracker.params.search_growth) == (0.1, 1.5)
+    assert tracker.params.uncertain_score == LOST_DEFAULTS["uncertain_score"]
+
+
+def test_providers(good: Path) -> None:
+    assert choose_providers()[-1] == "CPUExecutionProvider"
+    assert choose_providers("cpu") == ["CPUExecutionProvider"]
+    assert OnnxBackend(good, provider="CPUExecutionProvider", threads=1).providers == ["CPUExecutionProvider"]
+    with pytest.raises(InputError, match="provider 'warp-drive' is not available here"):
+        OnnxBackend(good, provider="warp-drive")
+    with pytest.raises(InputError, match="threads must be a positive integer"):
+        OnnxBackend(good, threads=0)

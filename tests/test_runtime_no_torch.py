@@ -1,0 +1,68 @@
+"""dadiff.runtime must work where torch, onnx and dadiff.export are not installed (the drone)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import cv2
+
+from runtime_models import write_corr_model
+from runtime_scenes import moving_sequence
+
+CHILD = textwrap.dedent(
+    """
+    import importlib.abc
+    from pathlib import Path
+    import sys
+
+    BLOCKED = ("torch", "onnx", "dadiff.export")
+
+
+    class Blocker(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if any(name == b or name.startswith(b + ".") for b in BLOCKED):
+                raise ImportError(f"{name} is not installed here (blocked by the test)")
+            return None
+
+
+    sys.meta_path.insert(0, Blocker())
+    import cv2
+
+    from dadiff import models
+    from dadiff.runtime import Tracker, cli
+
+    model, seq = sys.argv[1], sys.argv[2]
+    images = sorted(Path(seq, "img").iterdir())
+    box = tuple(float(v) for v in open(f"{seq}/groundtruth_rect.txt").readline().split(","))
+    tracker = Tracker.load(model, threads=1)
+    tracker.init(cv2.imread(str(images[0])), box)
+    states = [tracker.update(cv2.imread(str(p))).state for p in images[1:6]]
+    assert states == ["tracking"] * 5, states
+    assert models.list_models() == []
+    argv = ["--video", seq, "--model", model, "--max-frames", "4", "--output", f"{seq}/out.csv"]
+    assert cli.main(argv) == 0
+    loaded = [m for m in sys.modules if any(m == b or m.startswith(b + ".") for b in BLOCKED)]
+    assert not loaded, loaded
+    print("runtime ok without torch/onnx/export")
+    """
+)
+
+
+def test_runtime_without_torch_onnx_or_export(tmp_path: Path) -> None:
+    model = write_corr_model(tmp_path / "model")
+    seq = tmp_path / "seq"
+    (seq / "img").mkdir(parents=True)
+    frames, boxes = moving_sequence(60)
+    frames, boxes = frames[:8], boxes[:8]
+    for k, frame in enumerate(frames):
+        cv2.imwrite(str(seq / "img" / f"{k:04d}.png"), frame)
+    (seq / "groundtruth_rect.txt").write_text("".join(",".join(map(str, b)) + "\n" for b in boxes))
+    proc = subprocess.run(
+        [sys.executable, "-c", CHILD, str(model), str(seq)], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "runtime ok without torch/onnx/export" in proc.stdout
+    assert len((seq / "out.csv").read_text().splitlines()) == 1 + 4
