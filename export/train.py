@@ -105,8 +105,13 @@ def build_network(cfg: TrainConfig) -> DaDiffNet:
             nn.init.constant_(box.loc.head[3].bias, math.log(32.0))
         return net
     net = build_model(mc)
-    loaded = load_checkpoint(cfg.init)  # strict, same keys whatever the stage
-    net.load_state_dict(loaded.model.state_dict(), strict=True)
+    source = load_checkpoint(cfg.init).model.state_dict()  # strict for the checkpoint's own config
+    own = net.state_dict()
+    # the stages share every key; an ablation without the tracking-oriented layer only drops align_track.*
+    differ = sorted((set(source) ^ set(own)) - {k for k in set(source) | set(own) if k.startswith("align_track.")})
+    if differ:
+        raise ValueError(f"{cfg.init}: does not fit the configured model: {', '.join(differ[:5])}")
+    net.load_state_dict({k: v for k, v in source.items() if k in own}, strict=False)
     return net
 
 
