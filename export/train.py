@@ -290,7 +290,8 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
     tr = net.cfg.tracker
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
                       score_size=tr.score_size, context=tr.context_amount)
-    stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank)
+    stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
+                        with_night=cfg.stage == "dadiff")
     return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
                       persistent_workers=cfg.workers > 0)
 

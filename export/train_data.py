@@ -119,16 +119,21 @@ def to_chw(img: np.ndarray) -> torch.Tensor:
 class SceneSource:
     """Pairs of frames from generated scenes over the training split of photographs."""
 
-    def __init__(self, split: str = "train", max_gap: int = 60) -> None:
+    def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4) -> None:
         from dadiff.runtime.scenes import load_photos
 
         self.photos = load_photos(split)
         self.max_gap = max_gap
+        self.pairs_per_scene = pairs_per_scene  # building a scene costs ~10x rendering one of its frames
+        self._scene, self._uses = None, 0
 
     def sample(self, rng: np.random.Generator):
         from dadiff.runtime.scenes import Scene
 
-        scene = Scene.random(rng, self.photos, frames=self.max_gap + 1)
+        if self._scene is None or self._uses >= self.pairs_per_scene:
+            self._scene, self._uses = Scene.random(rng, self.photos, frames=self.max_gap + 1), 0
+        scene = self._scene
+        self._uses += 1
         i, j = sorted(rng.integers(0, self.max_gap + 1, size=2))
         (fi, bi), (fj, bj) = scene.render(int(i)), scene.render(int(j))
         return fi, np.asarray(bi, np.float32), fj, np.asarray(bj, np.float32)
@@ -244,10 +249,12 @@ class Sample:
 class PairStream(IterableDataset):
     """Endless stream of samples; each worker / rank draws from its own seeded generator."""
 
-    def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0) -> None:
+    def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0,
+                 with_night: bool = True) -> None:
         super().__init__()
         self.day_sources, self.cfg, self.seed, self.rank = day_sources, cfg, seed, rank
-        self.night_source = NightFolderSource(night) if night else None
+        self.with_night = with_night  # the baseline stage never looks at night data
+        self.night_source = NightFolderSource(night) if night and with_night else None
 
     def _night(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         from dadiff.runtime.scenes import render_night
@@ -270,7 +277,9 @@ class PairStream(IterableDataset):
             wx = jittered_window(bx, cfg.instance, cfg, cfg.search_shift, cfg.search_scale, rng)
             z, x = wz.cut(fz), wx.cut(fx)
             label, loc = ban_targets(wx.rel, cfg)
-            if self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
+            if not self.with_night:
+                zn, xn = z[:1, :1], x[:1, :1]  # placeholders, unused
+            elif self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
                 zn, xn = wz.cut(self._night(fz, rng)), wx.cut(self._night(fx, rng))
             else:
                 zn = self._crop_night(self.night_source.sample(rng), cfg.exemplar, rng)
