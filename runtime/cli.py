@@ -76,7 +76,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--video",
-        required=True,
         metavar="SRC",
         help="video file, camera index (0) or device (/dev/video0), stream URL (rtsp://, "
         "http://), or an OTB/UAV123-style image folder",
@@ -110,7 +109,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--max-frames", type=_positive_int, metavar="N", help="stop after N frames (incl. the first)"
     )
+    parser.add_argument(
+        "--demo",
+        action="store_true",
+        help="generate one night sequence, track it, write the annotated video and print FPS and success",
+    )
+    parser.add_argument("--demo-out", type=Path, default=Path("dadiff-demo"), help="folder for --demo's video")
+    parser.add_argument("--seed", type=int, default=0, help="sequence seed for --demo")
     return parser
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo  # the generator needs scikit-image's photos: loaded only here
+
+    run_demo(args.model, args.demo_out, seed=args.seed)
+    return 0
 
 
 @contextmanager
@@ -250,6 +263,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except SystemExit as exc:  # --help
         return exc.code if isinstance(exc.code, int) else 0
+    if args.demo:
+        try:
+            with _quiet_opencv():
+                return _demo(args)
+        except (ModelError, InputError, SourceError, OutputError, ValueError, ImportError) as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print(f"{PROG}: interrupted", file=sys.stderr)
+            return 130
+    if args.video is None:
+        print(f"{PROG}: error: one of --video SRC or --demo is required (see {PROG} --help)", file=sys.stderr)
+        return 2
     stats = RunStats()
     try:
         with _sigterm_as_interrupt(), _quiet_opencv():

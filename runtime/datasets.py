@@ -200,7 +200,10 @@ def _json(file: Path) -> list[Sequence]:
         if boxes.ndim != 2 or boxes.shape[1] != 4:
             raise DatasetError(f"{file}: sequence {name!r}: gt_rect rows must be x, y, w, h")
         attr = entry.get("attr") or []
-        names = parse_attributes(" ".join(str(a) for a in attr), f"{file} ({name})") if attr else ()
+        if all(str(a) in ("0", "1") for a in attr):
+            names = parse_attributes(" ".join(str(a) for a in attr), f"{file} ({name})") if attr else ()
+        else:
+            names = tuple(str(a) for a in attr)
         sequences.append(replace(_make_sequence(str(name), frames, boxes, file), attributes=names))
     return sequences
 

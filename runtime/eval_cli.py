@@ -1,0 +1,230 @@
+"""dadiff-eval: one-pass evaluation (run, score) and the night-scene benchmark generator (generate).
+
+dadiff-eval run --model M --dataset D --results R [--attributes]
+dadiff-eval run --tracker csrt --dataset D --results R
+dadiff-eval score --dataset D [--json] RESULT_DIR...
+dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from .datasets import Dataset, DatasetError, load_dataset
+from .errors import InputError, ModelError
+from .evaluate import EvalError, OpenCVTracker, RuntimeTracker, TrackerScores, result_folders, run_tracker, score_folder
+from .plots import write_plots
+from .scenes import PHOTO_SPLITS, SceneError, write_benchmark
+
+PROG = "dadiff-eval"
+NOTE = (
+    "Norm. Prec.: area under the normalised precision plot over [0, 0.5] (the paper's definition); "
+    "NPrec@0.2: the pysot toolkit's value at 0.2."
+)
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x360, got '{text}'") from None
+    return w, h
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description="One-pass evaluation of single-object trackers.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate}")
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
+    common.add_argument("--sequences", nargs="+", metavar="GLOB", help="only sequences matching these patterns")
+    common.add_argument("--attributes", action="store_true", help="also print (and plot) scores per attribute")
+
+    run = sub.add_parser("run", parents=[common], help="run a tracker over a dataset, then score and plot")
+    run.add_argument("--results", required=True, type=Path, help="results root: <results>/<dataset>/<tracker>/")
+    run.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
+    run.add_argument("--tracker", choices=("dadiff", "csrt", "kcf"), default="dadiff", help="tracker to run")
+    run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF)")
+    run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
+    run.add_argument("--threads", type=_positive, help="onnxruntime threads")
+    run.add_argument("--compare", nargs="+", type=Path, default=[], metavar="DIR", help="more result folders")
+    run.add_argument("--plots", type=Path, help="plot folder (default: <results>/plots/<dataset>)")
+    run.add_argument("--no-plots", action="store_true", help="do not draw plots")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    score = sub.add_parser("score", parents=[common], help="score result folders of any tracker")
+    score.add_argument("dirs", nargs="+", type=Path, metavar="DIR", help="tracker result folders, or their parent")
+    score.add_argument(
+        "--json", action="store_true", help='print {tracker: {"success", "norm_precision", "precision"}}'
+    )
+    score.add_argument("--plots", type=Path, help="also draw plots into this folder")
+
+    gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
+    gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    gen.add_argument("--sequences", type=_positive, default=16)
+    gen.add_argument("--frames", type=_positive, default=120)
+    gen.add_argument("--seed", type=int, default=0)
+    gen.add_argument("--split", choices=tuple(PHOTO_SPLITS), default="test", help="photo split (default: test)")
+    gen.add_argument("--size", type=_size, default=(640, 360), metavar="WxH", help="frame size (default 640x360)")
+    gen.add_argument("--workers", type=_positive, help="processes (default: one per core)")
+    return parser
+
+
+# ---------------------------------------------------------------------------------------------- output
+
+
+def format_table(title: str, scores: Sequence[TrackerScores], attribute: str | None = None) -> str:
+    """Plain-text table, best success first."""
+    rows = []
+    for item in sorted(scores, key=lambda s: -_pick(s, attribute).success):
+        s = _pick(item, attribute)
+        rows.append(
+            (
+                item.name,
+                f"{s.success:.3f}",
+                f"{s.norm_precision:.3f}",
+                f"{s.precision:.3f}",
+                f"{s.norm_precision_at_20:.3f}",
+            )
+        )
+    header = ("Tracker", "Succ.", "Norm. Prec.", "Prec.", "NPrec@0.2")
+    widths = [max(len(r[k]) for r in [header, *rows]) for k in range(len(header))]
+    lines = [title] + ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in [header, *rows]]
+    return "\n".join(lines)
+
+
+def _pick(item: TrackerScores, attribute: str | None):
+    return item.overall if attribute is None else item.by_attribute[attribute]
+
+
+def report(
+    dataset: Dataset, scores: list[TrackerScores], attributes: bool, plots: Path | None, subset: list[str] | None
+) -> None:
+    """Print the overall table (and per attribute), then draw the plots."""
+    label = dataset.name + (f" ({' '.join(subset)})" if subset else "")
+    print(format_table(f"{label}: {len(dataset.sequences)} sequences", scores))
+    names = dataset.attributes() if attributes else []
+    for attr in names:
+        count = sum(attr in s.attributes for s in dataset.sequences)
+        print()
+        print(format_table(f"{attr}: {count} sequences", scores, attr))
+    print(NOTE)
+    if plots is not None:
+        written = write_plots({s.name: s.overall for s in scores}, plots, label)
+        for attr in names:
+            written += write_plots({s.name: s.by_attribute[attr] for s in scores}, plots, label, attr)
+        print(f"plots: {len(written)} PNG files in {plots}")
+
+
+# -------------------------------------------------------------------------------------------- commands
+
+
+def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
+    if args.tracker != "dadiff":
+        for option in ("model", "preset", "threads"):
+            if getattr(args, option):
+                raise InputError(f"--{option} does not apply to --tracker {args.tracker}")
+        return OpenCVTracker(args.tracker), args.name or args.tracker.upper()
+    from dadiff.models import ModelNotFoundError, resolve
+
+    from .tracker import Tracker
+
+    try:
+        name = args.name or resolve(args.model).name
+    except ModelNotFoundError as exc:
+        raise ModelError(str(exc)) from None
+    tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads)
+    return RuntimeTracker(tracker), name
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    dataset = load_dataset(args.dataset).select(args.sequences)
+    tracker, name = _make_tracker(args)
+    done = run_tracker(tracker, name, dataset, args.results, progress=not args.no_progress)
+    fps = f", {done.fps:.1f} FPS" if done.fps else ""
+    print(
+        f"{name}: tracked {len(done.ran)} sequences ({done.frames} frames{fps}), "
+        f"{len(done.skipped)} already done, results in {done.folder}"
+    )
+    scores = [score_folder(dataset, done.folder, name)]
+    for other, folder in result_folders([done.folder.parent, *args.compare], dataset):
+        if folder.resolve() == done.folder.resolve():
+            continue
+        try:
+            scores.append(score_folder(dataset, folder, other))
+        except EvalError as exc:
+            print(f"note: not compared: {exc}", file=sys.stderr)
+    plots = None if args.no_plots else (args.plots or args.results / "plots" / dataset.name)
+    report(dataset, scores, args.attributes, plots, args.sequences)
+    return 0
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    dataset = load_dataset(args.dataset).select(args.sequences)
+    scores = [score_folder(dataset, folder, name) for name, folder in result_folders(args.dirs, dataset)]
+    if args.json:
+        table = {
+            s.name: {
+                "success": s.overall.success,
+                "norm_precision": s.overall.norm_precision,
+                "precision": s.overall.precision,
+            }
+            for s in scores
+        }
+        print(json.dumps(table, indent=2))
+        if args.plots:
+            label = dataset.name + (f" ({' '.join(args.sequences)})" if args.sequences else "")
+            write_plots({s.name: s.overall for s in scores}, args.plots, label)
+        return 0
+    report(dataset, scores, args.attributes, args.plots, args.sequences)
+    return 0
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    root = write_benchmark(
+        args.out, args.sequences, args.frames, args.seed, args.split, size=args.size, workers=args.workers
+    )
+    took = time.perf_counter() - start
+    print(
+        f"wrote {args.sequences} day + {args.sequences} night sequences of {args.frames} frames to {root} "
+        f"in {took:.1f} s"
+    )
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of `dadiff-eval`; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    commands = {"run": cmd_run, "score": cmd_score, "generate": cmd_generate}
+    try:
+        return commands[args.command](args)
+    except (DatasetError, EvalError, SceneError, ModelError, InputError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"{PROG}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; finished sequences are kept, run again to resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,303 @@
+"""Run a tracker over a dataset into pysot-format result files, and score result folders (OPE).
+
+Result files: `<results>/<dataset>/<tracker>/<sequence>.txt`, one `x,y,w,h` line per frame. Frame 0 holds
+the init box of the test protocol (spec 8.5): GT (x, y, w, h) becomes (x + 0.5, y + 0.5, w, h), for every
+tracker, so that all trackers share frame 0. A run is resumable: a sequence whose result file already has
+one line per frame is skipped. Files are written whole (temporary file, then rename), so an interrupted
+run never leaves a truncated file behind.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from .datasets import Dataset
+from .metrics import Scores, SequenceCurves, summarise
+
+Box = tuple[float, float, float, float]
+
+
+class EvalError(Exception):
+    """Results missing or malformed, a tracker unavailable, a frame unreadable (one-line message)."""
+
+
+class BoxTracker(Protocol):
+    """What the run loop drives: `init` with frame 0 and its GT box, then `update` per frame."""
+
+    def init(self, frame: np.ndarray, gt_box: Box) -> None: ...
+
+    def update(self, frame: np.ndarray) -> tuple[Box, float, str]: ...
+
+
+def protocol_box(gt_box: Sequence[float]) -> Box:
+    """The released test script's init box for a GT box: centre x + w/2, then x = cx - (w - 1)/2."""
+    x, y, w, h = (float(v) for v in gt_box)
+    return (x + 0.5, y + 0.5, w, h)
+
+
+class RuntimeTracker:
+    """Adapter for `dadiff.runtime.Tracker`, initialised with the protocol box as in the released script."""
+
+    def __init__(self, tracker: object) -> None:
+        self.tracker = tracker
+
+    def init(self, frame: np.ndarray, gt_box: Box) -> None:
+        self.tracker.init(frame, protocol_box(gt_box))
+
+    def update(self, frame: np.ndarray) -> tuple[Box, float, str]:
+        result = self.tracker.update(frame)
+        return tuple(result.box), float(result.score), str(result.state)
+
+
+OPENCV_TRACKERS = {"csrt": "TrackerCSRT", "kcf": "TrackerKCF"}
+
+
+def opencv_available(kind: str) -> bool:
+    """Whether this OpenCV build has the contrib tracker `kind` ('csrt' or 'kcf')."""
+    return hasattr(getattr(cv2, OPENCV_TRACKERS[kind], None), "create")
+
+
+class OpenCVTracker:
+    """OpenCV's CSRT or KCF (opencv-contrib). A failed update keeps the last box and reports 'lost'."""
+
+    def __init__(self, kind: str) -> None:
+        kind = kind.lower()
+        if kind not in OPENCV_TRACKERS:
+            raise EvalError(f"unknown OpenCV tracker '{kind}'; expected one of {', '.join(OPENCV_TRACKERS)}")
+        if not opencv_available(kind):
+            raise EvalError(
+                f"--tracker {kind} needs OpenCV's contrib modules (cv2.{OPENCV_TRACKERS[kind]} is missing): "
+                f"pip install opencv-contrib-python-headless=={cv2.__version__}.* (or dadiff[baselines])"
+            )
+        self.kind = kind
+        self._create = getattr(cv2, OPENCV_TRACKERS[kind]).create
+        self._tracker = None
+        self._last: Box = (0.0, 0.0, 0.0, 0.0)
+
+    def init(self, frame: np.ndarray, gt_box: Box) -> None:
+        x, y, w, h = (float(v) for v in gt_box)
+        rect = (round(x), round(y), max(1, round(w)), max(1, round(h)))
+        self._tracker = self._create()
+        self._tracker.init(frame, rect)
+        self._last = (x, y, w, h)
+
+    def update(self, frame: np.ndarray) -> tuple[Box, float, str]:
+        ok, rect = self._tracker.update(frame)
+        if ok and rect[2] > 0 and rect[3] > 0:
+            self._last = tuple(float(v) for v in rect)
+            return self._last, 1.0, "tracking"
+        return self._last, 0.0, "lost"
+
+
+# ----------------------------------------------------------------------------------------- result files
+
+
+def tracker_folder(results: Path, dataset: str, tracker: str) -> Path:
+    """`<results>/<dataset>/<tracker>`."""
+    return Path(results) / dataset / tracker
+
+
+def write_result(path: Path, boxes: Iterable[Sequence[float]]) -> None:
+    """Write `x,y,w,h` lines atomically (a temporary file renamed over `path`)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    lines = "".join(",".join(_number(v) for v in box) + "\n" for box in boxes)
+    tmp.write_text(lines)
+    os.replace(tmp, path)
+
+
+def _number(value: float) -> str:
+    value = float(value)
+    return "nan" if math.isnan(value) else f"{value:.4f}".rstrip("0").rstrip(".")
+
+
+def read_result(path: Path) -> np.ndarray:
+    """(N, 4) boxes from a result file: comma-separated lines, falling back to tabs, then spaces."""
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise EvalError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    rows = []
+    for number, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line:
+            continue
+        parts = line.split(",")
+        if len(parts) == 1:
+            parts = line.split("\t") if "\t" in line else line.split()
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise EvalError(f"{path}:{number}: expected x,y,w,h, got {line!r}") from None
+        if len(values) != 4:
+            raise EvalError(f"{path}:{number}: expected 4 numbers, got {len(values)}")
+        rows.append(values)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+
+
+def _complete(path: Path, frames: int) -> bool:
+    try:
+        return len(read_result(path)) == frames
+    except EvalError:
+        return False
+
+
+# ------------------------------------------------------------------------------------------------ run
+
+
+@dataclass
+class RunReport:
+    """What a run did: sequences tracked and skipped (already done), frames tracked, tracking time."""
+
+    tracker: str
+    folder: Path
+    ran: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    frames: int = 0
+    seconds: float = 0.0
+
+    @property
+    def fps(self) -> float | None:
+        return self.frames / self.seconds if self.seconds > 0 else None
+
+
+def _read_frame(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise EvalError(f"{path}: cannot read image")
+    return image
+
+
+def _check_first_box(name: str, box: np.ndarray) -> None:
+    if not (np.all(np.isfinite(box)) and box[2] > 0 and box[3] > 0):
+        raise EvalError(f"sequence {name}: first ground-truth box {box.tolist()} is invalid; cannot initialise")
+
+
+def run_tracker(
+    tracker: BoxTracker,
+    name: str,
+    dataset: Dataset,
+    results: Path,
+    *,
+    progress: bool = True,
+) -> RunReport:
+    """Track every sequence of `dataset` not yet in `<results>/<dataset>/<name>/`; one-pass, no re-init."""
+    folder = tracker_folder(results, dataset.name, name)
+    report = RunReport(name, folder)
+    todo = []
+    for seq in dataset.sequences:
+        if _complete(folder / f"{seq.name}.txt", len(seq)):
+            report.skipped.append(seq.name)
+        else:
+            _check_first_box(seq.name, seq.boxes[0])
+            todo.append(seq)
+    bar = tqdm(
+        total=sum(len(s) for s in todo),
+        desc=f"{name} on {dataset.name}",
+        unit="frame",
+        file=sys.stderr,
+        disable=not progress or not todo,
+        dynamic_ncols=True,
+    )
+    with bar:
+        for seq in todo:
+            bar.set_postfix_str(seq.name)
+            frame = _read_frame(seq.frames[0])
+            tracker.init(frame, tuple(seq.boxes[0]))
+            boxes: list[Sequence[float]] = [protocol_box(seq.boxes[0])]
+            bar.update(1)
+            for path in seq.frames[1:]:
+                frame = _read_frame(path)
+                start = time.perf_counter()
+                box, _, _ = tracker.update(frame)
+                report.seconds += time.perf_counter() - start
+                boxes.append(box)
+                bar.update(1)
+            report.frames += len(seq) - 1
+            write_result(folder / f"{seq.name}.txt", boxes)
+            report.ran.append(seq.name)
+    return report
+
+
+# ---------------------------------------------------------------------------------------------- score
+
+
+@dataclass(frozen=True)
+class TrackerScores:
+    """Scores of one result folder: overall, per attribute, and the per-sequence curves behind them."""
+
+    name: str
+    folder: Path
+    overall: Scores
+    by_attribute: dict[str, Scores]
+    sequences: dict[str, SequenceCurves]
+
+
+def score_folder(dataset: Dataset, folder: Path, name: str | None = None) -> TrackerScores:
+    """Score the result files in `folder` against every sequence of `dataset`."""
+    folder = Path(folder)
+    missing = [s.name for s in dataset.sequences if not (folder / f"{s.name}.txt").is_file()]
+    if missing:
+        shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
+        raise EvalError(
+            f"{folder}: no results for {len(missing)} of {len(dataset.sequences)} sequences of {dataset.name} ({shown})"
+        )
+    curves = {}
+    for seq in dataset.sequences:
+        path = folder / f"{seq.name}.txt"
+        pred = read_result(path)
+        if len(pred) != len(seq):
+            raise EvalError(f"{path}: {len(pred)} boxes, but {seq.name} has {len(seq)} ground-truth frames")
+        curves[seq.name] = SequenceCurves.from_boxes(seq.boxes, pred)
+    by_attribute = {
+        attr: summarise(curves[s.name] for s in dataset.sequences if attr in s.attributes)
+        for attr in dataset.attributes()
+    }
+    return TrackerScores(name or folder.name, folder, summarise(curves.values()), by_attribute, curves)
+
+
+def result_folders(paths: Iterable[Path], dataset: Dataset) -> list[tuple[str, Path]]:
+    """(name, folder) per tracker: a path holding `<seq>.txt` files is one tracker; a path whose
+    sub-folders hold them (such as `<results>/<dataset>`) gives one tracker per sub-folder.
+
+    Names are the folder names, prefixed with the parent folder's name where two would clash.
+    """
+    wanted = {f"{s.name}.txt" for s in dataset.sequences}
+
+    def holds_results(folder: Path) -> bool:
+        return folder.is_dir() and any(p.name in wanted for p in folder.iterdir())
+
+    found: list[Path] = []
+    for path in paths:
+        path = Path(path).expanduser()
+        if not path.is_dir():
+            raise EvalError(f"{path}: no such results folder")
+        if holds_results(path):
+            found.append(path)
+            continue
+        subs = sorted(p for p in path.iterdir() if holds_results(p))
+        if not subs:
+            raise EvalError(f"{path}: no result files for {dataset.name} (expected <sequence>.txt files)")
+        found.extend(subs)
+    counts: dict[str, int] = {}
+    for folder in found:
+        counts[folder.name] = counts.get(folder.name, 0) + 1
+    out, seen = [], set()
+    for folder in found:
+        name = folder.name if counts[folder.name] == 1 else f"{folder.parent.name}/{folder.name}"
+        if folder.resolve() in seen:
+            continue
+        seen.add(folder.resolve())
+        out.append((name, folder))
+    return out

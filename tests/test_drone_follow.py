@@ -1,0 +1,167 @@
+"""Follow controller: the control law, the limits and the safety state machine (no MAVLink, no clock)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from dadiff.drone import follow
+from dadiff.drone.follow import (
+    ZERO,
+    Autopilot,
+    Detection,
+    FollowConfig,
+    Follower,
+    Gains,
+    Limits,
+    Velocity,
+    slew,
+    velocity_for,
+)
+from dadiff.drone.mav import mavlink
+
+W, H = 640, 480
+GUIDED = 4
+LOITER = 5
+PX4_OFFBOARD = 6 << 16
+PX4_POSCTL = 3 << 16
+CFG = FollowConfig()
+
+
+def det(box=(300, 220, 40, 40), state="tracking", stamp=0.0, target=1) -> Detection:
+    return Detection(target, state, box, (W, H), stamp)
+
+
+def ardupilot(stamp: float = 0.0, armed: bool = True, mode: int = GUIDED, vehicle: int = 2) -> Autopilot:
+    base = follow.MODE_FLAG_ARMED if armed else 0
+    return Autopilot(follow.AUTOPILOT_ARDUPILOT, vehicle, base, mode, stamp)
+
+
+def px4(stamp: float = 0.0, armed: bool = True, mode: int = PX4_OFFBOARD) -> Autopilot:
+    return Autopilot(follow.AUTOPILOT_PX4, 2, follow.MODE_FLAG_ARMED if armed else 0, mode, stamp)
+
+
+def test_constants_match_pymavlink() -> None:
+    assert follow.AUTOPILOT_ARDUPILOT == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+    assert follow.AUTOPILOT_PX4 == mavlink.MAV_AUTOPILOT_PX4
+    assert follow.MODE_FLAG_ARMED == mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    copters = ("QUADROTOR", "COAXIAL", "HELICOPTER", "HEXAROTOR", "OCTOROTOR", "TRICOPTER", "DODECAROTOR", "DECAROTOR")
+    assert follow.COPTER_TYPES == {getattr(mavlink, f"MAV_TYPE_{n}") for n in copters}
+
+
+def test_centred_target_at_reference_size_gives_zero() -> None:
+    d = det((300, 220, 40, 40))
+    ref = follow.apparent_size(d.box, d.frame_size)
+    assert velocity_for(d, ref, CFG) == ZERO
+
+
+def test_directions() -> None:
+    ref = follow.apparent_size((0, 0, 40, 40), (W, H))
+    right = velocity_for(det((500, 220, 40, 40)), ref, CFG)
+    assert right.yaw_rate > 0 and right.forward == 0 and right.down == 0
+    left = velocity_for(det((20, 220, 40, 40)), ref, CFG)
+    assert left.yaw_rate < 0
+    smaller = velocity_for(det((310, 230, 20, 20)), ref, CFG)
+    assert smaller.forward > 0
+    bigger = velocity_for(det((280, 200, 80, 80)), ref, CFG)
+    assert bigger.forward < 0
+    below = det((300, 400, 40, 40))
+    assert velocity_for(below, ref, CFG).down == 0  # altitude held by default
+    climb = FollowConfig(altitude=True)
+    assert velocity_for(below, ref, climb).down > 0  # target low in the image: descend
+    strafe = FollowConfig(gains=Gains(lateral=1.0))
+    assert velocity_for(det((500, 220, 40, 40)), ref, strafe).right > 0
+
+
+def test_limits() -> None:
+    limits = Limits(speed=1.5, climb=0.5, yaw_rate=0.3)
+    cfg = FollowConfig(gains=Gains(yaw=10, lateral=10, vertical=10, forward=50), limits=limits, altitude=True)
+    ref = follow.apparent_size((0, 0, 200, 200), (W, H))
+    v = velocity_for(det((630, 470, 5, 5)), ref, cfg)
+    assert math.hypot(v.forward, v.right) == pytest.approx(1.5)
+    assert abs(v.down) == pytest.approx(0.5) and abs(v.yaw_rate) == pytest.approx(0.3)
+
+
+def test_slew_limits_change_per_step() -> None:
+    limits = Limits(accel=2.0, yaw_accel=1.0)
+    out = slew(ZERO, Velocity(3.0, -3.0, 1.0, 2.0), 0.1, limits)
+    assert out == Velocity(pytest.approx(0.2), pytest.approx(-0.2), pytest.approx(0.2), pytest.approx(0.1))
+    assert slew(out, out, 0.1, limits) == out
+
+
+def run(follower: Follower, t: float, ap: Autopilot | None, d: Detection | None, periodic: bool = True):
+    return follower.step(t, ap, d, periodic)
+
+
+def test_ardupilot_follows_only_armed_in_guided() -> None:
+    f = Follower(CFG)
+    assert run(f, 0.0, ardupilot(armed=False), det()) is None
+    assert run(f, 0.1, ardupilot(0.1, mode=LOITER), det(stamp=0.1)) is None
+    assert run(f, 0.2, ardupilot(0.2, vehicle=mavlink.MAV_TYPE_FIXED_WING), det(stamp=0.2)) is None  # plane mode 4
+    assert run(f, 0.3, None, det(stamp=0.3)) is None
+    sp = run(f, 0.4, ardupilot(0.4), det((500, 220, 40, 40), stamp=0.4))
+    assert sp is not None and f.state == follow.FOLLOW and sp.velocity.yaw_rate > 0
+    # pilot switches to LOITER: silence at once, not even a zero
+    assert run(f, 0.5, ardupilot(0.5, mode=LOITER), det(stamp=0.5)) is None and f.state == follow.OFF
+    assert run(f, 0.6, ardupilot(0.6, mode=LOITER), det(stamp=0.6)) is None
+
+
+def test_uncertain_holds_with_slew_then_resumes() -> None:
+    f = Follower(CFG)
+    run(f, 0.0, ardupilot(0.0), det((300, 220, 40, 40), stamp=0.0))  # reference
+    sp = None
+    for k in range(1, 20):
+        sp = run(f, k / 15, ardupilot(k / 15), det((600, 220, 40, 40), stamp=k / 15))
+    assert sp is not None and sp.velocity.yaw_rate > 0.5
+    held = run(f, 20 / 15, ardupilot(20 / 15), det((600, 220, 40, 40), "uncertain", stamp=20 / 15))
+    assert f.state == follow.HOLD and held is not None
+    assert 0 < held.velocity.yaw_rate < sp.velocity.yaw_rate  # slewing down, not a jump
+    back = run(f, 21 / 15, ardupilot(21 / 15), det((600, 220, 40, 40), stamp=21 / 15))
+    assert f.state == follow.FOLLOW and back is not None
+
+
+@pytest.mark.parametrize("cause", ["lost", "idle", "stale", "heartbeat"])
+def test_stop_sends_zero_at_once_then_nothing(cause: str) -> None:
+    f = Follower(CFG)
+    run(f, 0.0, ardupilot(0.0), det((300, 220, 40, 40), stamp=0.0))
+    assert run(f, 0.1, ardupilot(0.1), det((500, 220, 40, 40), stamp=0.1)).velocity.yaw_rate > 0
+    t = 0.15
+    if cause in ("lost", "idle"):
+        first = run(f, t, ardupilot(t), det(state=cause, stamp=t), periodic=False)  # on the result, not a tick
+    elif cause == "stale":
+        t = 0.1 + CFG.stale_after + 0.01
+        first = run(f, t, ardupilot(t), det(stamp=0.1))
+    else:
+        t = 0.1 + CFG.heartbeat_timeout + 0.01
+        first = run(f, t, ardupilot(0.1), det(stamp=t))
+    assert first is not None and first.velocity == ZERO and first.reason.startswith("stop")
+    repeats = [run(f, t + k / 15, ardupilot(t + k / 15) if cause != "heartbeat" else None, None) for k in (1, 2, 3, 4)]
+    assert [r.velocity if r else None for r in repeats] == [ZERO] * (CFG.stop_repeats - 1) + [None] * (
+        5 - CFG.stop_repeats
+    )
+    assert f.state == follow.OFF
+
+
+def test_px4_streams_zeros_before_offboard() -> None:
+    f = Follower(CFG)
+    t = 0.0
+    out = []
+    for k in range(10):  # armed in POSCTL, target tracked: zeros so that the pilot can switch
+        t = k / 15
+        out.append(run(f, t, px4(t, mode=PX4_POSCTL), det((500, 220, 40, 40), stamp=t)))
+    assert all(sp is not None and sp.velocity == ZERO for sp in out) and f.state == follow.PRESTREAM
+    # OFFBOARD after 0.6 s of zeros: still zeros until a full second of them
+    t += 1 / 15
+    assert run(f, t, px4(t), det((500, 220, 40, 40), stamp=t)).velocity == ZERO
+    t = CFG.prestream + 0.01
+    sp = run(f, t, px4(t), det((500, 220, 40, 40), stamp=t))
+    assert f.state == follow.FOLLOW and sp is not None and sp.velocity.yaw_rate > 0
+
+
+def test_px4_disarmed_or_no_target_sends_nothing() -> None:
+    f = Follower(CFG)
+    assert run(f, 0.0, px4(armed=False, mode=PX4_POSCTL), det()) is None
+    assert run(f, 0.1, px4(0.1, mode=PX4_POSCTL), det(state="lost", stamp=0.1)) is None
+    assert run(f, 0.2, px4(0.2, mode=PX4_POSCTL), None) is None
+    assert f.state == follow.OFF

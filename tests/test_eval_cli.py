@@ -1,0 +1,136 @@
+"""dadiff-eval end to end on a tiny generated benchmark: run (resumable), score, plots, baselines, errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dadiff.models import DEFAULT_MODEL, list_models
+from dadiff.runtime.eval_cli import main
+from dadiff.runtime.evaluate import EvalError, OpenCVTracker, opencv_available, read_result
+
+pytest.importorskip("skimage")  # the scene photos
+
+SIZE = "192x128"
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval") / "bench"
+    assert (
+        main(
+            [
+                "generate",
+                "--out",
+                str(root),
+                "--sequences",
+                "2",
+                "--frames",
+                "4",
+                "--seed",
+                "3",
+                "--size",
+                SIZE,
+                "--workers",
+                "1",
+            ]
+        )
+        == 0
+    )
+    return root
+
+
+@pytest.fixture(scope="module")
+def corr_model(tmp_path_factory):
+    pytest.importorskip("onnx")
+    from runtime_models import write_corr_model
+
+    return write_corr_model(tmp_path_factory.mktemp("model") / "corr")
+
+
+def _gt(bench, name):
+    return np.loadtxt(bench / name / "groundtruth_rect.txt", delimiter=",")
+
+
+def test_run_writes_pysot_results_and_resumes(bench, corr_model, tmp_path, capsys):
+    results = tmp_path / "results"
+    args = ["run", "--model", str(corr_model), "--dataset", str(bench), "--results", str(results), "--no-progress"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "corr: tracked 4 sequences" in out and "Succ." in out and "NPrec@0.2" in out
+    folder = results / "bench" / "corr"
+    boxes = read_result(folder / "seq001_night.txt")
+    assert boxes.shape == (4, 4)
+    x, y, w, h = _gt(bench, "seq001_night")[0]
+    assert boxes[0].tolist() == pytest.approx([x + 0.5, y + 0.5, w, h], abs=1e-3)  # spec 8.5 init box
+    assert sorted(p.name for p in (results / "plots" / "bench").iterdir()) == [
+        "norm_precision_ALL.png",
+        "precision_ALL.png",
+        "success_ALL.png",
+    ]
+    (folder / "seq002_day.txt").unlink()
+    assert main(args) == 0
+    assert "tracked 1 sequences (3 frames" in capsys.readouterr().out  # the other three were kept
+    assert main([*args, "--sequences", "*_night", "--attributes", "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "bench (*_night): 2 sequences" in out and "LAI: 2 sequences" in out
+
+
+def test_score_json_for_any_result_folder(bench, tmp_path, capsys):
+    folder = tmp_path / "mine" / "Perfect"
+    folder.mkdir(parents=True)
+    for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
+        np.savetxt(folder / f"{seq}.txt", _gt(bench, seq), delimiter=",")
+    assert main(["score", "--dataset", str(bench), "--json", str(tmp_path / "mine")]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert list(table) == ["Perfect"]
+    assert set(table["Perfect"]) == {"success", "norm_precision", "precision"}
+    assert table["Perfect"]["success"] == pytest.approx(20 / 21)
+    assert table["Perfect"]["precision"] == 1.0
+
+
+@pytest.mark.parametrize("kind", ["csrt", "kcf"])
+def test_opencv_baselines(bench, tmp_path, capsys, kind):
+    if not opencv_available(kind):
+        pytest.skip("opencv-contrib is not installed")
+    assert main(["run", "--tracker", kind, "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 0
+    assert f"{kind.upper()}: tracked 4 sequences" in capsys.readouterr().out
+    assert read_result(tmp_path / "bench" / kind.upper() / "seq002_day.txt").shape == (4, 4)
+
+
+def test_missing_contrib_is_a_clear_error(monkeypatch):
+    import cv2
+
+    monkeypatch.delattr(cv2, "TrackerCSRT", raising=False)
+    with pytest.raises(EvalError, match="needs OpenCV's contrib modules"):
+        OpenCVTracker("csrt")
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_bad_input_gives_one_line_and_non_zero_exit(bench, tmp_path, capsys):
+    assert main(["score", "--dataset", str(tmp_path / "nope"), str(tmp_path)]) == 1
+    assert "no such dataset folder" in _one_error_line(capsys)
+    (tmp_path / "empty").mkdir()
+    assert main(["score", "--dataset", str(bench), str(tmp_path / "empty")]) == 1
+    assert "no result files for bench" in _one_error_line(capsys)
+    short = tmp_path / "short" / "T"
+    short.mkdir(parents=True)
+    for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
+        (short / f"{seq}.txt").write_text("1,2,3,4\n")
+    assert main(["score", "--dataset", str(bench), str(short)]) == 1
+    assert "1 boxes, but seq001_day has 4" in _one_error_line(capsys)
+    assert main(["generate", "--out", str(bench), "--sequences", "1"]) == 1
+    assert "not an empty folder" in _one_error_line(capsys)
+
+
+@pytest.mark.skipif(DEFAULT_MODEL in list_models(), reason="a default model ships")
+def test_run_without_a_model_explains_that_none_ships(bench, tmp_path, capsys):
+    assert main(["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 1
+    assert "no trained default model" in _one_error_line(capsys)
