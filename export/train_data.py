@@ -20,6 +20,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from dadiff.runtime.crop import crop_side, mean_colour, subwindow
+from dadiff.runtime.datasets import DatasetError, read_boxes
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
 
@@ -139,15 +140,6 @@ class SceneSource:
         return fi, np.asarray(bi, np.float32), fj, np.asarray(bj, np.float32)
 
 
-def read_boxes(path: Path) -> np.ndarray:
-    rows = []
-    for line in path.read_text().splitlines():
-        parts = line.replace(",", " ").replace("\t", " ").split()
-        if parts:
-            rows.append([float(v) for v in parts[:4]])
-    return np.asarray(rows, dtype=np.float32)
-
-
 class SequenceSource:
     """Two frames of one sequence from GOT-10k (`groundtruth.txt`) or OTB/UAV123 (`groundtruth_rect.txt`,
     frames in `img/`) folders under a root."""
@@ -157,7 +149,10 @@ class SequenceSource:
         for gt in sorted(Path(root).rglob("groundtruth*.txt")):
             folder = gt.parent / "img" if (gt.parent / "img").is_dir() else gt.parent
             frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
-            boxes = read_boxes(gt)
+            try:
+                boxes = read_boxes(gt)
+            except DatasetError:
+                continue
             n = min(len(frames), len(boxes))
             valid = [k for k in range(n) if boxes[k, 2] > 1 and boxes[k, 3] > 1 and np.isfinite(boxes[k]).all()]
             if len(valid) >= 2:

@@ -56,7 +56,8 @@ def _hp_arg(text: str) -> dict[str, str]:
     return values
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
     try:
         value = int(text)
     except ValueError:
@@ -103,11 +104,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--provider", help="onnxruntime provider (cpu, cuda, tensorrt, openvino; default: best)"
     )
-    parser.add_argument("--threads", type=_positive_int, help="threads per session (default: CPU count)")
+    parser.add_argument("--threads", type=positive_int, help="threads per session (default: CPU count)")
     parser.add_argument("--output", type=Path, metavar="FILE", help="track log, .csv or .jsonl")
     parser.add_argument("--save-video", type=Path, metavar="OUT.mp4", help="annotated video (mp4v)")
     parser.add_argument(
-        "--max-frames", type=_positive_int, metavar="N", help="stop after N frames (incl. the first)"
+        "--max-frames", type=positive_int, metavar="N", help="stop after N frames (incl. the first)"
     )
     parser.add_argument(
         "--demo",

@@ -15,6 +15,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from .cli import positive_int
 from .datasets import Dataset, DatasetError, load_dataset
 from .errors import InputError, ModelError
 from .evaluate import EvalError, OpenCVTracker, RuntimeTracker, TrackerScores, result_folders, run_tracker, score_folder
@@ -36,16 +37,6 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description="One-pass evaluation of single-object trackers.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate}")
@@ -61,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--tracker", choices=("dadiff", "csrt", "kcf"), default="dadiff", help="tracker to run")
     run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF)")
     run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
-    run.add_argument("--threads", type=_positive, help="onnxruntime threads")
+    run.add_argument("--threads", type=positive_int, help="onnxruntime threads")
     run.add_argument("--compare", nargs="+", type=Path, default=[], metavar="DIR", help="more result folders")
     run.add_argument("--plots", type=Path, help="plot folder (default: <results>/plots/<dataset>)")
     run.add_argument("--no-plots", action="store_true", help="do not draw plots")
@@ -76,12 +67,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
     gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
-    gen.add_argument("--sequences", type=_positive, default=16)
-    gen.add_argument("--frames", type=_positive, default=120)
+    gen.add_argument("--sequences", type=positive_int, default=16)
+    gen.add_argument("--frames", type=positive_int, default=120)
     gen.add_argument("--seed", type=int, default=0)
     gen.add_argument("--split", choices=tuple(PHOTO_SPLITS), default="test", help="photo split (default: test)")
     gen.add_argument("--size", type=_size, default=(640, 360), metavar="WxH", help="frame size (default 640x360)")
-    gen.add_argument("--workers", type=_positive, help="processes (default: one per core)")
+    gen.add_argument("--workers", type=positive_int, help="processes (default: one per core)")
     return parser
 
 

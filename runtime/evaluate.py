@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .datasets import Dataset
+from .datasets import Dataset, DatasetError, read_boxes
 from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
@@ -123,27 +123,11 @@ def _number(value: float) -> str:
 
 
 def read_result(path: Path) -> np.ndarray:
-    """(N, 4) boxes from a result file: comma-separated lines, falling back to tabs, then spaces."""
+    """(N, 4) boxes from a result file (comma, tab or space separated x,y,w,h lines)."""
     try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise EvalError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    rows = []
-    for number, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line:
-            continue
-        parts = line.split(",")
-        if len(parts) == 1:
-            parts = line.split("\t") if "\t" in line else line.split()
-        try:
-            values = [float(p) for p in parts]
-        except ValueError:
-            raise EvalError(f"{path}:{number}: expected x,y,w,h, got {line!r}") from None
-        if len(values) != 4:
-            raise EvalError(f"{path}:{number}: expected 4 numbers, got {len(values)}")
-        rows.append(values)
-    return np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+        return read_boxes(path)
+    except DatasetError as exc:
+        raise EvalError(str(exc)) from None
 
 
 def _complete(path: Path, frames: int) -> bool:
