@@ -117,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--demo-out", type=Path, default=Path("dadiff-demo"), help="folder for --demo's video")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed for --demo")
+    from dadiff.drone.cli import add_mavlink_arguments  # light: no pymavlink at parser time
+
+    add_mavlink_arguments(parser)
     return parser
 
 
@@ -258,12 +261,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of dadiff-run; returns the exit code."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        from dadiff.drone.config import parse_args as parse_with_config
+
+        args = parse_with_config(parser, argv)  # --config FILE.toml; the command line wins
     except UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help
         return exc.code if isinstance(exc.code, int) else 0
+    if args.mavlink:
+        from dadiff.drone.cli import run_mavlink
+
+        with _quiet_opencv():
+            return run_mavlink(args)
     if args.demo:
         try:
             with _quiet_opencv():
@@ -275,7 +285,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{PROG}: interrupted", file=sys.stderr)
             return 130
     if args.video is None:
-        print(f"{PROG}: error: one of --video SRC or --demo is required (see {PROG} --help)", file=sys.stderr)
+        print(f"{PROG}: error: one of --video SRC, --demo or --mavlink CONN is required (see {PROG} --help)",
+              file=sys.stderr)
         return 2
     stats = RunStats()
     try:

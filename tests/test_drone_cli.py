@@ -13,10 +13,10 @@ from pathlib import Path
 
 import cv2
 import pytest
-from drone_peers import GroundStation, free_port, wait_until
 
 from dadiff.drone import cli
 from dadiff.drone.mav import mavlink
+from drone_peers import GroundStation, free_port, wait_until
 from runtime_models import write_corr_model
 from runtime_scenes import FRAME_H, FRAME_W, moving_sequence
 

@@ -12,10 +12,10 @@ import time
 from pathlib import Path
 
 import pytest
-from drone_peers import Autopilot, GroundStation, Rig, free_port, wait_until
 
 from dadiff.drone.follow import FollowConfig
 from dadiff.drone.mav import mavlink
+from drone_peers import Autopilot, GroundStation, Rig, free_port, wait_until
 
 pytest.importorskip("MAVProxy", reason="MAVProxy is not installed")
 pytest.importorskip("serial", reason="MAVProxy needs pyserial")

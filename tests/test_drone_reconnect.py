@@ -7,12 +7,11 @@ import socket
 import threading
 import time
 
-from drone_peers import Autopilot, FakeTracker, Rig, SourceFactory, free_port, rate, wait_until
-
 from dadiff.drone.follow import FollowConfig
 from dadiff.drone.link import LinkSettings
 from dadiff.drone.service import Service, ServiceSettings
 from dadiff.drone.systemd import Notifier
+from drone_peers import Autopilot, FakeTracker, Rig, SourceFactory, free_port, rate, wait_until
 
 FAST = {"retry_min": 0.1, "retry_max": 0.4, "silence_timeout": 1.5}
 

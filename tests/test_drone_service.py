@@ -12,10 +12,10 @@ import threading
 import time
 
 import pytest
-from drone_peers import HEIGHT, WIDTH, GroundStation, Rig, rate, wait_until
 
 from dadiff.drone.follow import FollowConfig, Limits
 from dadiff.drone.mav import mavlink
+from drone_peers import HEIGHT, WIDTH, GroundStation, Rig, rate, wait_until
 
 ACCEPTED, DENIED = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED
 TEMP = mavlink.MAV_RESULT_TEMPORARILY_REJECTED

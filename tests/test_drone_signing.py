@@ -8,10 +8,10 @@ import os
 from pathlib import Path
 
 import pytest
-from drone_peers import GroundStation, Rig
 
 from dadiff.drone.mav import mavlink
 from dadiff.drone.signing import SignatureCheck, SigningKeyError, UnsignedPolicy, key_from_bytes, load_key
+from drone_peers import GroundStation, Rig
 
 KEY = hashlib.sha256(b"test flight").digest()
 RECT = mavlink.MAV_CMD_CAMERA_TRACK_RECTANGLE

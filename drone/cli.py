@@ -1,0 +1,274 @@
+"""`dadiff-run --mavlink CONN`: the tracker as a MAVLink camera component (and optional follow controller)
+on a companion computer.
+
+dadiff.runtime.cli calls `add_mavlink_arguments(parser)` while building its parser and
+`run_mavlink(args)` when --mavlink is given; `dadiff.drone.config.parse_args` adds `--config FILE.toml`.
+This module imports nothing heavy at import time: the runtime's parser can load it cheaply.
+
+Exit codes: 0 stopped (SIGTERM, end of a video file, --max-frames), 1 a loop died (systemd restarts the
+service), 2 bad input (one `dadiff-run: error:` line on stderr), 130 Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+PROG = "dadiff-run"
+
+
+def _int_in(low: int, high: int) -> Any:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = low - 1
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _float_in(low: float, high: float, *, open_low: bool = False) -> Any:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        ok = math.isfinite(value) and (value > low if open_low else value >= low) and value <= high
+        if not ok:
+            raise argparse.ArgumentTypeError(f"expected a number from {low:g} to {high:g}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _sysids(text: str) -> frozenset[int]:
+    try:
+        values = frozenset(int(p) for p in text.replace(" ", "").split(",") if p)
+    except ValueError:
+        values = frozenset({-1})
+    if not values or not all(1 <= v <= 255 for v in values):
+        raise argparse.ArgumentTypeError(f"expected system ids 1-255 separated by commas, got {text!r}")
+    return values
+
+
+def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
+    """The MAVLink, follow, service and logging options (and --config); adding them twice is a no-op."""
+    if "--mavlink" in parser._option_string_actions:
+        return
+    parser.add_argument(
+        "--config",
+        type=Path,
+        metavar="FILE.toml",
+        help='read options from a TOML file: each long option is a key (video = "/dev/video0", '
+        "follow = true, init = [612, 300, 24, 18]); the command line overrides it",
+    )
+    g = parser.add_argument_group("MAVLink camera component (companion computer)")
+    g.add_argument(
+        "--mavlink",
+        metavar="CONN",
+        help="run as a MAVLink camera on this pymavlink connection: udpin:0.0.0.0:14560, "
+        "udpout:HOST:PORT, tcp:HOST:PORT, or a serial port /dev/ttyAMA0,921600. Without --init, "
+        "tracking starts when a ground station sends a track command",
+    )
+    g.add_argument("--dialect", choices=("ardupilotmega", "common"), default="ardupilotmega", help="MAVLink dialect")
+    g.add_argument(
+        "--sysid", type=_int_in(1, 254), help="our system id (the vehicle's); default: learned from the autopilot"
+    )
+    g.add_argument("--component", type=_int_in(100, 105), default=100, help="camera component id (default 100)")
+    g.add_argument(
+        "--allow-sysid",
+        type=_sysids,
+        default=frozenset({255}),
+        metavar="IDS",
+        help="system ids whose commands are accepted besides the vehicle's own (default 255)",
+    )
+    g.add_argument(
+        "--signing-key",
+        type=Path,
+        metavar="FILE",
+        help="MAVLink 2 signing key: 32 raw bytes, 64 hex digits, or a passphrase (SHA-256); "
+        "unsigned packets are then rejected",
+    )
+    g.add_argument(
+        "--tracking-rate",
+        type=_float_in(0, 50),
+        default=10.0,
+        metavar="HZ",
+        help="CAMERA_TRACKING_IMAGE_STATUS rate while tracking (default 10; 0: only when asked); "
+        "ground stations change it with MAV_CMD_SET_MESSAGE_INTERVAL",
+    )
+    g.add_argument(
+        "--link-timeout",
+        type=_float_in(0.5, 600),
+        default=5.0,
+        metavar="S",
+        help="reopen the link after this long without a message (default 5)",
+    )
+    f = parser.add_argument_group("follow controller (off by default)")
+    f.add_argument(
+        "--follow",
+        action="store_true",
+        help="send body-frame velocity setpoints that keep the target centred and at its starting size, "
+        "only while armed in ArduCopter GUIDED or PX4 OFFBOARD",
+    )
+    f.add_argument("--follow-rate", type=_float_in(10, 20), default=15.0, metavar="HZ", help="setpoint rate")
+    f.add_argument("--max-speed", type=_float_in(0, 20, open_low=True), default=3.0, metavar="M/S")
+    f.add_argument("--max-climb", type=_float_in(0, 10, open_low=True), default=1.0, metavar="M/S")
+    f.add_argument("--max-yaw-rate", type=_float_in(0, 360, open_low=True), default=45.0, metavar="DEG/S")
+    f.add_argument("--max-accel", type=_float_in(0, 20, open_low=True), default=2.0, metavar="M/S2")
+    f.add_argument(
+        "--follow-altitude", action="store_true", help="also climb or descend to centre the target (default: hold)"
+    )
+    f.add_argument("--yaw-gain", type=_float_in(0, 10), default=1.0, help="rad/s per unit horizontal error")
+    f.add_argument("--lateral-gain", type=_float_in(0, 10), default=0.0, help="m/s per unit horizontal error")
+    f.add_argument("--forward-gain", type=_float_in(0, 20), default=2.0, help="m/s per unit log-size error")
+    f.add_argument("--vertical-gain", type=_float_in(0, 10), default=1.0, help="m/s per unit vertical error")
+    s = parser.add_argument_group("service logging")
+    s.add_argument("--log-file", type=Path, metavar="FILE", help="also log to this rotating file")
+    s.add_argument("--log-max-bytes", type=_int_in(10_000, 10**10), default=10_000_000, metavar="N")
+    s.add_argument("--log-backups", type=_int_in(0, 100), default=5, metavar="N")
+    s.add_argument("--log-level", choices=("DEBUG", "INFO", "WARNING", "ERROR"), default="INFO")
+
+
+def _error(message: object) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _looks_missing(spec: str) -> bool:
+    """A video given as a path that does not exist (cameras and streams may appear later)."""
+    if spec.isdigit() or spec.startswith("/dev/") or "://" in spec:
+        return False
+    return not Path(spec).expanduser().exists()
+
+
+def _settings(args: argparse.Namespace, key: bytes | None) -> Any:
+    from .camera import CameraSettings
+    from .follow import FollowConfig, Gains, Limits
+    from .link import LinkSettings
+    from .service import ServiceSettings
+
+    follow = None
+    if args.follow:
+        follow = FollowConfig(
+            gains=Gains(args.yaw_gain, args.lateral_gain, args.vertical_gain, args.forward_gain),
+            limits=Limits(
+                args.max_speed, args.max_climb, math.radians(args.max_yaw_rate), args.max_accel, math.radians(90)
+            ),
+            altitude=args.follow_altitude,
+            rate_hz=args.follow_rate,
+        )
+    init = getattr(args, "init", None)
+    if init is not None:
+        x, y, w, h = init
+        init = (x + 0.5, y + 0.5, w, h)  # the convention of dadiff-run --init (the released toolkit's)
+    return ServiceSettings(
+        link=LinkSettings(
+            args.mavlink, args.dialect, args.component, args.sysid, key, silence_timeout=args.link_timeout
+        ),
+        camera=CameraSettings(args.component, args.tracking_rate, allowed_sysids=args.allow_sysid),
+        follow=follow,
+        init_box=init,
+        max_frames=getattr(args, "max_frames", None),
+    )
+
+
+def run_mavlink(args: argparse.Namespace) -> int:
+    """Run the service until SIGTERM / Ctrl-C, the end of a video file, or --max-frames; the exit code."""
+    from .logs import log_handlers, service_logging
+
+    video = getattr(args, "video", None)
+    if not video:
+        return _error("--mavlink needs --video (the camera: 0, /dev/video0, rtsp://...)")
+    if _looks_missing(video):
+        return _error(f"no such file or folder: '{video}'")
+    try:
+        handlers = log_handlers(args.log_file, args.log_max_bytes, args.log_backups)
+    except OSError as exc:
+        return _error(f"{args.log_file}: cannot write the log ({exc.strerror or exc})")
+    with service_logging(args.log_level, handlers):
+        return _run(args, video)
+
+
+def _run(args: argparse.Namespace, video: str) -> int:
+    from dadiff.runtime.errors import InputError, ModelError
+    from dadiff.runtime.outputs import OutputError, Sink, TrackLog, VideoSink
+    from dadiff.runtime.sources import open_source
+    from dadiff.runtime.tracker import Tracker
+
+    from .service import Service
+    from .signing import SigningKeyError, load_key
+    from .systemd import Notifier
+
+    sinks: list[Sink] = []
+    try:
+        key = load_key(args.signing_key) if args.signing_key is not None else None
+        tracker = Tracker.load(
+            getattr(args, "model", None),
+            provider=getattr(args, "provider", None),
+            threads=getattr(args, "threads", None),
+            preset=getattr(args, "preset", None),
+            overrides=getattr(args, "hp", None) or None,
+        )
+        output, save_video = getattr(args, "output", None), getattr(args, "save_video", None)
+        if output is not None:
+            sinks.append(TrackLog(output))
+        if save_video is not None:
+            sinks.append(VideoSink(save_video, None))
+    except (SigningKeyError, ModelError, InputError, OutputError) as exc:
+        for sink in sinks:
+            sink.close()
+        return _error(exc)
+    service = Service(_settings(args, key), tracker, lambda: open_source(video), sinks, Notifier())
+    return _run_with_signals(service)
+
+
+def _run_with_signals(service: Any) -> int:
+    """SIGTERM stops cleanly (exit 0), Ctrl-C too (exit 130); handlers only in the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        return service.run()
+    caught: list[int] = []
+
+    def stop(signum: int, frame: object) -> None:
+        caught.append(signum)
+        service.stop()
+
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        rc = service.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 130 if signal.SIGINT in caught and rc == 0 else rc
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Stand-alone entry (python -m dadiff.drone.cli): the dadiff-run parser with these options."""
+    from dadiff.runtime import cli as runtime_cli
+
+    from .config import parse_args
+
+    parser = runtime_cli.build_parser()
+    add_mavlink_arguments(parser)
+    try:
+        args = parse_args(parser, argv)
+    except runtime_cli.UsageError as exc:
+        return _error(exc)
+    except SystemExit as exc:  # --help
+        return exc.code if isinstance(exc.code, int) else 0
+    if not args.mavlink:
+        return _error("--mavlink CONN is required here (plain tracking is dadiff-run without it)")
+    return run_mavlink(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

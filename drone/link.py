@@ -1,0 +1,242 @@
+"""The MAVLink connection: open from a pymavlink connection string, receive, send, sign, and reopen by
+itself after loss. Owned by one thread (the MAVLink loop); nothing here blocks for long.
+
+Loss is an exception from the socket or serial port, end of file on TCP, or `silence_timeout` seconds
+without a single message; the link is then closed and reopened with a growing delay (`retry_min` to
+`retry_max`). A UDP link needs no reopen when its peer restarts, but reopening one costs nothing.
+
+System id: `sysid` when given, else learned from the first autopilot HEARTBEAT (component 1, autopilot
+not MAV_AUTOPILOT_INVALID). Nothing is sent before it is known, and it is never 255 (a GCS id).
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from dataclasses import dataclass
+from typing import Any
+
+from .logs import Throttle
+from .mav import mavlink, mavutil
+from .signing import SignatureCheck, UnsignedPolicy
+
+log = logging.getLogger(__name__)
+
+SIGNING_LINK_ID = 1
+
+
+@dataclass(frozen=True)
+class LinkSettings:
+    url: str
+    dialect: str = "ardupilotmega"
+    component: int = mavlink.MAV_COMP_ID_CAMERA
+    sysid: int | None = None
+    signing_key: bytes | None = None
+    silence_timeout: float = 5.0
+    retry_min: float = 0.5
+    retry_max: float = 5.0
+
+
+def split_device(url: str) -> tuple[str, int | None]:
+    """'/dev/ttyAMA0,921600' → ('/dev/ttyAMA0', 921600); other strings pass unchanged."""
+    device, sep, baud = url.rpartition(",")
+    if sep and device and baud.strip().isdigit():
+        return device, int(baud)
+    return url, None
+
+
+def is_autopilot_heartbeat(msg: Any) -> bool:
+    return (
+        getattr(msg, "autopilot", mavlink.MAV_AUTOPILOT_INVALID) != mavlink.MAV_AUTOPILOT_INVALID
+        and msg.get_srcComponent() == mavlink.MAV_COMP_ID_AUTOPILOT1
+        and msg.get_srcSystem() not in (0, 255)
+    )
+
+
+def _drop_partial_frame(mav: Any) -> None:
+    """Forget bytes of a frame that its datagram did not complete (MAVLink frames never span datagrams)."""
+    mav.buf, mav.buf_index = bytearray(), 0
+    mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+
+
+class Link:
+    def __init__(self, settings: LinkSettings) -> None:
+        self.settings = settings
+        self.sysid: int | None = settings.sysid
+        self.conn: mavutil.mavfile | None = None
+        self.policy = UnsignedPolicy() if settings.signing_key is not None else None
+        self.opened_at = 0.0
+        self.last_rx = 0.0
+        self._next_try = 0.0
+        self._delay = settings.retry_min
+        self._ever_received = False
+        self.sent = self.received = self.bad = self.opens = 0
+        self._throttle = Throttle(log)
+
+    # -- connection ---------------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self.conn is not None
+
+    def fileno(self) -> int | None:
+        if self.conn is None:
+            return None
+        fd = getattr(self.conn, "fd", None)
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
+    def maintain(self, now: float) -> None:
+        """Open when due; treat a silent link as lost."""
+        if self.conn is None:
+            if now >= self._next_try:
+                self._open(now)
+            return
+        quiet_since = max(self.last_rx, self.opened_at)
+        if now - quiet_since > self.settings.silence_timeout:
+            self.lost(now, f"no data for {self.settings.silence_timeout:g} s")
+
+    def _open(self, now: float) -> None:
+        s = self.settings
+        device, baud = split_device(s.url)
+        try:
+            conn = mavutil.mavlink_connection(
+                device,
+                baud=baud or 115200,
+                source_system=self.sysid or 0,
+                source_component=s.component,
+                dialect=s.dialect,
+                autoreconnect=False,
+                retries=0,
+            )
+        except Exception as exc:  # OSError, serial.SerialException, ValueError for a bad string
+            self._next_try = now + self._delay
+            self._throttle.log(logging.WARNING, "open", "cannot open MAVLink %s (%s); retrying", s.url, exc)
+            self._delay = min(self._delay * 2, s.retry_max)
+            return
+        conn.robust_parsing = conn.mav.robust_parsing = True
+        if s.signing_key is not None:
+            conn.setup_signing(
+                s.signing_key, sign_outgoing=True, allow_unsigned_callback=self.policy, link_id=SIGNING_LINK_ID
+            )
+            conn.mav.check_signature = SignatureCheck(conn.mav.signing)
+        self.conn, self.opened_at, self.opens = conn, now, self.opens + 1
+        log.info("MAVLink %s open%s", s.url, " (signed)" if s.signing_key is not None else "")
+
+    def lost(self, now: float, reason: str) -> None:
+        """Close after a failure; the next `maintain` after the retry delay reopens."""
+        if self.conn is not None:
+            log.warning("MAVLink %s lost (%s); reconnecting", self.settings.url, reason)
+            try:
+                self.conn.close()
+            except Exception:
+                log.debug("close failed", exc_info=True)
+        self.conn = None
+        self._next_try = now + self._delay
+        self._delay = min(self._delay * 2, self.settings.retry_max)
+
+    def close(self) -> None:
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except Exception:
+                log.debug("close failed", exc_info=True)
+            self.conn = None
+
+    # -- receive ------------------------------------------------------------------------------------
+    def _tcp_closed(self) -> bool:
+        """EOF or reset on a TCP link (pymavlink would print and spin on it instead)."""
+        port = getattr(self.conn, "port", None)
+        if not isinstance(self.conn, mavutil.mavtcp) or port is None:
+            return False
+        try:
+            return port.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+        except (BlockingIOError, InterruptedError):
+            return False
+
+    def _messages(self, limit: int) -> list[Any]:
+        conn = self.conn
+        assert conn is not None
+        if not isinstance(conn, mavutil.mavudp):
+            msgs = []
+            for _ in range(limit):
+                msg = conn.recv_msg()
+                if msg is None:
+                    break
+                msgs.append(msg)
+            return msgs
+        # UDP: parse each datagram on its own. pymavlink keeps an incomplete frame in its buffer and would
+        # glue the next datagram to it, so one truncated or junk datagram would cost the next good packet.
+        msgs = []
+        for _ in range(limit):
+            data = conn.recv()
+            if not data:
+                break
+            parsed = conn.mav.parse_buffer(data) or []
+            _drop_partial_frame(conn.mav)
+            for msg in parsed:
+                if msg.get_type() != "BAD_DATA":
+                    conn.post_message(msg)
+                msgs.append(msg)
+        return msgs
+
+    def receive(self, now: float, limit: int = 200) -> list[Any]:
+        """Messages waiting now (at most `limit`); bad packets are counted and dropped."""
+        if self.conn is None:
+            return []
+        out: list[Any] = []
+        try:
+            if self._tcp_closed():
+                self.lost(now, "connection closed by peer")
+                return out
+            for msg in self._messages(limit):
+                if msg.get_type() == "BAD_DATA":
+                    self.bad += 1
+                    reason = getattr(msg, "reason", "")
+                    self._throttle.log(logging.WARNING, "bad", "dropped a bad MAVLink packet: %s", reason)
+                    continue
+                out.append(msg)
+        except Exception as exc:
+            self.lost(now, f"{type(exc).__name__}: {exc}")
+            return out
+        if out:
+            self.last_rx = now
+            self._delay = self.settings.retry_min
+            if not self._ever_received:
+                self._ever_received = True
+                log.info("MAVLink %s receiving", self.settings.url)
+        self.received += len(out)
+        self._report_unsigned()
+        return out
+
+    def _report_unsigned(self) -> None:
+        if self.policy is None:
+            return
+        rejected = self.policy.take_rejected()
+        for msg_id, count in rejected.items():
+            name = getattr(mavlink.mavlink_map.get(msg_id), "msgname", str(msg_id))
+            self._throttle.log(
+                logging.WARNING, f"unsigned{msg_id}", "rejected %d unsigned or badly signed %s", count, name
+            )
+
+    def adopt_sysid(self, sysid: int) -> bool:
+        """Take the autopilot's system id as ours (once); False when a different one is configured."""
+        if self.sysid is None:
+            self.sysid = sysid
+            log.info("system id %d learned from the autopilot heartbeat", sysid)
+        if self.conn is not None:
+            self.conn.mav.srcSystem = self.conn.source_system = self.sysid
+        return self.sysid == sysid
+
+    # -- send ---------------------------------------------------------------------------------------
+    def send(self, msg: Any, now: float) -> bool:
+        """Send one message; False (and nothing sent) without a connection or a system id."""
+        if self.conn is None or self.sysid is None:
+            return False
+        mav = self.conn.mav
+        mav.srcSystem, mav.srcComponent = self.sysid, self.settings.component
+        try:
+            mav.send(msg)
+        except Exception as exc:
+            self.lost(now, f"send failed: {type(exc).__name__}: {exc}")
+            return False
+        self.sent += 1
+        return True
