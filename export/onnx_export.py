@@ -114,7 +114,6 @@ class ExportReport:
     parity: dict[str, float] = field(default_factory=dict)      # output -> scaled error (see parity_error)
     parity_abs: dict[str, float] = field(default_factory=dict)  # output -> plain max-abs difference
     seconds: float = 0.0
-    random_ops: list[str] = field(default_factory=list)
 
     @property
     def max_parity(self) -> float:
