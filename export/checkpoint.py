@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import pickle
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -130,7 +130,8 @@ def load_state_dict_strict(model: DaDiffNet, sd: dict[str, torch.Tensor], path: 
     model.load_state_dict(sd, strict=True)
 
 
-def load_checkpoint(path: str | Path, family: str | None = None, steps: int | None = None) -> LoadedCheckpoint:
+def load_checkpoint(path: str | Path, family: str | None = None, steps: int | None = None,
+                    preset: str | None = None) -> LoadedCheckpoint:
     """Build the right model for a checkpoint and load it strictly (eval mode)."""
     p = Path(path)
     obj = read_checkpoint_file(p)
@@ -153,6 +154,10 @@ def load_checkpoint(path: str | Path, family: str | None = None, steps: int | No
         raise CheckpointError(f"{p}: holds a {cfg.family} model, not {family}")
     if steps is not None and steps != cfg.ddim_steps:
         cfg = cfg.with_steps(steps)
+    if preset is not None:
+        if preset not in cfg.tracker.hp_presets:
+            raise CheckpointError(f"{p}: unknown preset {preset!r}; known: {', '.join(sorted(cfg.tracker.hp_presets))}")
+        cfg = replace(cfg, tracker=replace(cfg.tracker, default_preset=preset))
     model = build_model(cfg)
     load_state_dict_strict(model, sd, p)
     model.eval()

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .checkpoint import CheckpointError, load_checkpoint
-from .config import FAMILIES
+from .config import FAMILIES, HP_PRESETS
 from .onnx_export import DEFAULT_OPSET, PARITY_TOLERANCE, SUPPORTED_OPSETS, ExportError, export_model
 
 
@@ -20,6 +20,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1} (default {DEFAULT_OPSET})")
     p.add_argument("--family", choices=FAMILIES, help="require this model family")
+    p.add_argument("--preset", choices=sorted(HP_PRESETS),
+                   help="hyper-parameter preset the runtime uses by default (default: the checkpoint's)")
     p.add_argument("--tolerance", type=float, default=PARITY_TOLERANCE,
                    help=f"max-abs torch/onnxruntime difference allowed (default {PARITY_TOLERANCE:g})")
     return p
@@ -39,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     name = args.name or Path(args.checkpoint).stem
     out = Path(args.output) if args.output else Path(name)
     try:
-        loaded = load_checkpoint(args.checkpoint, family=args.family, steps=args.steps)
+        loaded = load_checkpoint(args.checkpoint, family=args.family, steps=args.steps, preset=args.preset)
         print(f"dadiff-export: {args.checkpoint}: {loaded.config.family} ({loaded.source} format, "
               f"sha256 {loaded.sha256[:12]}…)", flush=True)
         report = export_model(loaded, out, name, args.opset, args.tolerance)

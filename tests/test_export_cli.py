@@ -107,3 +107,10 @@ def test_output_path_that_is_a_file(tmp_path, capsys, lite_checkpoint):
     target.write_text("x")
     code, _, err = _run(capsys, str(lite_checkpoint), "-o", str(target))
     assert code == 2 and "exists and is not a folder" in err
+
+
+def test_preset_sets_the_runtime_default(tmp_path, capsys, lite_checkpoint):
+    code, _, err = _run(capsys, str(lite_checkpoint), "-o", str(tmp_path / "nat"), "--preset", "NAT")
+    assert code == 0, err
+    meta = ort.InferenceSession(str(tmp_path / "nat" / "search.onnx")).get_modelmeta().custom_metadata_map
+    assert meta["default_preset"] == "NAT" and meta["lr"] == "0.45" and meta["penalty_k"] == "0.14"
