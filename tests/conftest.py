@@ -46,3 +46,13 @@ def lite_model_dir(tmp_path_factory, lite_checkpoint) -> Path:
     out = tmp_path_factory.mktemp("models") / "lite"
     export_model(load_checkpoint(lite_checkpoint), out, "test-lite")
     return out
+
+
+@pytest.fixture
+def no_shipped_model(tmp_path, monkeypatch) -> None:
+    """Pretend no trained default ships (the state before one was trained), to test that message."""
+    import dadiff.models
+
+    empty = tmp_path / "no-models"
+    empty.mkdir()
+    monkeypatch.setattr(dadiff.models, "_HERE", empty)

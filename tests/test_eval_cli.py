@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pytest
 
-from dadiff.models import DEFAULT_MODEL, list_models
 from dadiff.runtime.eval_cli import main
 from dadiff.runtime.evaluate import EvalError, OpenCVTracker, opencv_available, read_result
 
@@ -130,7 +129,6 @@ def test_bad_input_gives_one_line_and_non_zero_exit(bench, tmp_path, capsys):
     assert "not an empty folder" in _one_error_line(capsys)
 
 
-@pytest.mark.skipif(DEFAULT_MODEL in list_models(), reason="a default model ships")
-def test_run_without_a_model_explains_that_none_ships(bench, tmp_path, capsys):
+def test_run_without_a_model_explains_that_none_ships(bench, tmp_path, capsys, no_shipped_model):
     assert main(["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 1
     assert "no trained default model" in _one_error_line(capsys)

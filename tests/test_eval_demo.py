@@ -5,7 +5,6 @@ from __future__ import annotations
 import cv2
 import pytest
 
-from dadiff.models import DEFAULT_MODEL, list_models
 from dadiff.runtime.demo import run_demo
 from dadiff.runtime.errors import ModelError
 
@@ -28,7 +27,6 @@ def test_demo_writes_video_and_reports(tmp_path, capsys):
     assert "success" in capsys.readouterr().out
 
 
-@pytest.mark.skipif(DEFAULT_MODEL in list_models(), reason="a default model ships")
-def test_demo_without_default_model_raises_a_clear_error(tmp_path):
+def test_demo_without_default_model_raises_a_clear_error(tmp_path, no_shipped_model):
     with pytest.raises(ModelError, match="no trained default model"):
         run_demo(None, tmp_path)

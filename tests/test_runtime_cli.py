@@ -179,7 +179,6 @@ def test_ctrl_c_flushes_outputs(
 
 BAD_INPUTS = [
     (["--model", "{root}/missing"], "model '{root}/missing' not found"),
-    ([], "no trained default model is shipped yet"),
     (["--model", "{nometa}"], "metadata key 'dadiff_format' is missing"),
     (["--model", "{corrupt}"], "template.onnx: not a loadable ONNX model"),
     (["--model", "{model}", "--init", "220,160,0,40"], "zero or negative size"),
@@ -240,3 +239,9 @@ def test_console_error_is_one_line_without_traceback(data: dict[str, Path]) -> N
     assert proc.stderr.strip().splitlines() == [
         f"dadiff-run: error: cannot read video file '{data['not_video']}'"
     ]
+
+
+def test_no_default_model_is_one_line(data: dict[str, Path], no_shipped_model, capsys: pytest.CaptureFixture) -> None:
+    assert cli.main(["--video", str(data["video"]), "--init", "220,160,40,40"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no trained default model is shipped yet" in err[0]

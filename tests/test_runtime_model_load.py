@@ -23,7 +23,7 @@ def _variant(tmp_path: Path, **meta: str | None) -> Path:
     return write_corr_model(tmp_path / "variant", meta=meta)
 
 
-def test_no_default_model_shipped_yet() -> None:
+def test_no_default_model_shipped_yet(no_shipped_model) -> None:
     assert models.list_models() == []
     with pytest.raises(models.ModelNotFoundError, match="no trained default model is shipped yet.*--model"):
         models.resolve(None)
@@ -34,7 +34,7 @@ def test_no_default_model_shipped_yet() -> None:
 def test_resolve_paths(good: Path, tmp_path: Path) -> None:
     assert models.resolve(good) == good
     assert models.resolve(str(good / "template.onnx")) == good
-    with pytest.raises(models.ModelNotFoundError, match="model 'nope' not found.*shipped: none yet"):
+    with pytest.raises(models.ModelNotFoundError, match="model .nope. not found.*shipped: dadiff-lite"):
         models.resolve("nope")
     text = tmp_path / "notes.txt"
     text.write_text("x")
@@ -109,3 +109,12 @@ def test_providers(good: Path) -> None:
         OnnxBackend(good, provider="warp-drive")
     with pytest.raises(InputError, match="threads must be a positive integer"):
         OnnxBackend(good, threads=0)
+
+
+def test_the_shipped_default_is_a_trained_lite_model() -> None:
+    assert models.DEFAULT_MODEL in models.list_models()
+    folder = models.resolve(None)
+    assert (folder / "MODEL_CARD.md").is_file()
+    tracker = Tracker.load(threads=1)
+    assert tracker.backend.meta["family"] == "dadiff-lite"
+    assert "runs/lite-dadiff/final.pt" in (folder / "MODEL_CARD.md").read_text()
