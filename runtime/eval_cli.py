@@ -43,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
-    common.add_argument("--sequences", nargs="+", metavar="GLOB", help="only sequences matching these patterns")
+    common.add_argument("--sequences", action="append", metavar="GLOB",
+                        help="only sequences matching this pattern (repeat for several)")
     common.add_argument("--attributes", action="store_true", help="also print (and plot) scores per attribute")
 
     run = sub.add_parser("run", parents=[common], help="run a tracker over a dataset, then score and plot")

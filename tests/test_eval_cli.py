@@ -132,3 +132,14 @@ def test_bad_input_gives_one_line_and_non_zero_exit(bench, tmp_path, capsys):
 def test_run_without_a_model_explains_that_none_ships(bench, tmp_path, capsys, no_shipped_model):
     assert main(["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 1
     assert "no trained default model" in _one_error_line(capsys)
+
+
+def test_sequence_filter_does_not_swallow_result_folders(bench, tmp_path, capsys):
+    results = tmp_path / "results"
+    assert main(["run", "--dataset", str(bench), "--results", str(results), "--tracker", "dadiff",
+                 "--model", "dadiff-lite", "--no-progress", "--no-plots"]) == 0
+    capsys.readouterr()
+    folder = results / bench.name
+    assert main(["score", "--dataset", str(bench), "--sequences", "*_night", "--sequences", "*_day",
+                 str(folder)]) == 0
+    assert "4 sequences" in capsys.readouterr().out
