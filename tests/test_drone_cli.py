@@ -19,6 +19,7 @@ from dadiff.drone.mav import mavlink
 from drone_peers import GroundStation, free_port, wait_until
 from runtime_models import write_corr_model
 from runtime_scenes import FRAME_H, FRAME_W, moving_sequence
+from torchless import PRELUDE
 
 
 @pytest.fixture(scope="module")
@@ -129,21 +130,8 @@ def test_bad_inputs_exit_2(media: dict[str, Path], tmp_path: Path, capsys: pytes
     assert len(err) == 4 and all(line.startswith("dadiff-run: error:") for line in err)
 
 
-CHILD = textwrap.dedent(
+CHILD = PRELUDE + textwrap.dedent(
     """
-    import importlib.abc, sys
-
-    BLOCKED = ("torch", "onnx", "dadiff.export")
-
-
-    class Blocker(importlib.abc.MetaPathFinder):
-        def find_spec(self, name, path=None, target=None):
-            if any(name == b or name.startswith(b + ".") for b in BLOCKED):
-                raise ImportError(f"{name} is not installed here (blocked by the test)")
-            return None
-
-
-    sys.meta_path.insert(0, Blocker())
     from dadiff.drone import cli
 
     video, model, port = sys.argv[1:4]
