@@ -1,8 +1,8 @@
 """Models shipped with dadiff, and resolution of `--model` arguments to a model folder.
 
 A shipped model is a folder under this package holding `template.onnx` and `search.onnx` (the layout of
-docs/model-format.md). `DEFAULT_MODEL` names the one used when no model is given; none is shipped yet
-(the trained default comes with the training work).
+docs/model-format.md) and its MODEL_CARD.md. `DEFAULT_MODEL` names the one used when no model is given:
+the trained dadiff-lite in models/dadiff-lite.
 """
 
 from __future__ import annotations
