@@ -84,9 +84,13 @@ def draw_overlay(image: np.ndarray, record: Record) -> np.ndarray:
     text = f"{record.state} {record.score:.2f}"
     if record.fps:
         text += f"  {record.fps:.0f} FPS"
-    origin = (max(0, round(x)), max(14, round(y) - 6))
-    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+    # a dark plate behind the label (an outline stroke renders wider than the text in OpenCV 5),
+    # kept inside the frame so the label stays readable near the right and top edges
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+    left = min(max(0, round(x)), max(0, image.shape[1] - tw - 4))
+    bottom = max(th + base + 2, round(y) - 4)
+    cv2.rectangle(image, (left, bottom - th - base - 2), (left + tw + 4, bottom), (0, 0, 0), -1)
+    cv2.putText(image, text, (left + 2, bottom - base), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
     return image
 
 
