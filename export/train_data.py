@@ -229,18 +229,6 @@ def make_day_source(spec: dict):
     raise ValueError(f"unknown day data kind {kind!r}; expected scenes, got10k, otb or images")
 
 
-@dataclass
-class Sample:
-    """One training example: day template/search crops with targets, and their night counterparts."""
-
-    z: torch.Tensor
-    x: torch.Tensor
-    label: torch.Tensor
-    loc: torch.Tensor
-    z_night: torch.Tensor
-    x_night: torch.Tensor
-
-
 class PairStream(IterableDataset):
     """Endless stream of samples; each worker / rank draws from its own seeded generator."""
 
