@@ -28,10 +28,16 @@ def as_image(frame: object) -> np.ndarray:
     return frame
 
 
-def to_blob(patch: np.ndarray, channel_order: str = "BGR") -> np.ndarray:
-    """(1, 3, H, W) float32 from an H×W[×3] uint8 BGR (or grey) patch, in the model's channel order."""
+def to_blob(patch: np.ndarray, channel_order: str = "BGR", out: np.ndarray | None = None) -> np.ndarray:
+    """(1, 3, H, W) float32 from an H×W[×3] uint8 BGR (or grey) patch, in the model's channel order.
+
+    With `out` (a (1, 3, H, W) float32 array) the values are written there and `out` is returned.
+    """
     if patch.ndim == 2:
-        patch = patch[:, :, None].repeat(3, axis=2)
-    elif channel_order == "RGB":
-        patch = patch[:, :, ::-1]
-    return np.ascontiguousarray(patch.transpose(2, 0, 1)[None], dtype=np.float32)
+        planes = np.broadcast_to(patch[None], (3, *patch.shape))
+    else:
+        planes = (patch[:, :, ::-1] if channel_order == "RGB" else patch).transpose(2, 0, 1)
+    if out is None:
+        return np.ascontiguousarray(planes[None], dtype=np.float32)
+    np.copyto(out[0], planes)
+    return out

@@ -1,7 +1,10 @@
 """onnxruntime implementation of the backend protocol for a dadiff model folder.
 
 Session settings follow what was measured on small CPUs: ORT_ENABLE_ALL (its layout pass roughly halves
-conv time), and no spinning intra-op threads, since the template and search sessions share the cores.
+conv time), one intra-op thread per physical core, and no spinning threads, since the template and search
+sessions share the cores. The optimised graph is cached on disk per CPU (runtime/ort_cache.py), and the
+per-frame call goes through an IO binding whose kernels are bound once per target: each frame only writes
+the search crop into a buffer the session already knows.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import onnxruntime as ort
 
 from .config import REQUIRED_KEYS, TUNABLE_KEYS, check_metadata, parse_geometry
 from .errors import InputError, ModelError
+from .ort_cache import cached_model_path, store_atomically
 
 # Tried in this order when present; the CPU provider always ends the list as the fallback.
 PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "OpenVINOExecutionProvider")
@@ -37,14 +41,33 @@ def choose_providers(provider: str | None = None) -> list[str]:
     raise InputError(f"provider '{provider}' is not available here (available: {', '.join(available)})")
 
 
-def session_options(threads: int | None = None) -> ort.SessionOptions:
-    """Options shared by both sessions; `threads` defaults to os.cpu_count()."""
+def physical_cores() -> int:
+    """Physical cores this process may run on (SMT siblings counted once): ORT's best intra-op thread count."""
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
+    cores = set()
+    for cpu in cpus:
+        topology = Path(f"/sys/devices/system/cpu/cpu{cpu}/topology")
+        try:
+            cores.add(((topology / "physical_package_id").read_text(), (topology / "core_id").read_text()))
+        except OSError:
+            cores.add(("cpu", str(cpu)))
+    return max(1, len(cores))
+
+
+def session_options(threads: int | None = None, optimise: bool = True) -> ort.SessionOptions:
+    """Options shared by both sessions; `threads` defaults to the physical core count.
+
+    `optimise=False` is for graphs that onnxruntime already optimised (the on-disk cache).
+    """
     if threads is None:
-        threads = os.cpu_count() or 1
+        threads = physical_cores()
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise InputError(f"threads must be a positive integer, got {threads!r}")
     options = ort.SessionOptions()
-    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.graph_optimization_level = (
+        ort.GraphOptimizationLevel.ORT_ENABLE_ALL if optimise else ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    )
+    options.enable_mem_pattern = True
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
@@ -60,11 +83,23 @@ def _first_line(exc: BaseException) -> str:
     return line if len(line) <= 200 else line[:197] + "..."
 
 
-def _open(path: Path, options: ort.SessionOptions, providers: list[str]) -> ort.InferenceSession:
+def _open(path: Path, threads: int | None, providers: list[str], cache: bool) -> ort.InferenceSession:
+    """A session for `path`, from the per-CPU cache of optimised graphs when there is one (CPU only)."""
     if not path.is_file():
         raise ModelError(f"{path}: file not found (a model folder holds template.onnx and search.onnx)")
+    cached = cached_model_path(path, ort.__version__) if cache and providers == [CPU] else None
+    if cached is not None and cached.is_file():
+        try:
+            return ort.InferenceSession(str(cached), session_options(threads, optimise=False), providers=providers)
+        except Exception:  # a damaged cache entry: rebuild it from the model
+            cached.unlink(missing_ok=True)
+    options = session_options(threads)
     try:
-        return ort.InferenceSession(str(path), sess_options=options, providers=providers)
+        if cached is None:
+            return ort.InferenceSession(str(path), sess_options=options, providers=providers)
+        with store_atomically(cached) as staging:
+            options.optimized_model_filepath = str(staging)
+            return ort.InferenceSession(str(path), sess_options=options, providers=providers)
     except Exception as exc:  # onnxruntime raises several unrelated types for unreadable models
         raise ModelError(f"{path}: not a loadable ONNX model ({_first_line(exc)})") from None
 
@@ -85,10 +120,18 @@ def _check_shape(path: Path, arg: ort.NodeArg, expected: Sequence[int], what: st
 
 
 class OnnxBackend:
-    """Runs `template.onnx` once per init and `search.onnx` every frame; feeds the search graph by name."""
+    """Runs `template.onnx` once per init and `search.onnx` every frame; feeds the search graph by name.
+
+    `cache=False` skips the on-disk cache of optimised graphs (DADIFF_CACHE_DIR=off does the same).
+    """
 
     def __init__(
-        self, folder: str | Path, *, provider: str | None = None, threads: int | None = None
+        self,
+        folder: str | Path,
+        *,
+        provider: str | None = None,
+        threads: int | None = None,
+        cache: bool = True,
     ) -> None:
         folder = Path(folder)
         if folder.suffix.lower() == ".onnx" and not folder.is_dir():
@@ -100,13 +143,15 @@ class OnnxBackend:
         self.template_path = folder / "template.onnx"
         self.search_path = folder / "search.onnx"
         providers = choose_providers(provider)
-        options = session_options(threads)
-        self._template = _open(self.template_path, options, providers)
-        self._search = _open(self.search_path, options, providers)
+        session_options(threads)  # checks `threads` before any session is built
+        self._template = _open(self.template_path, threads, providers, cache)
+        self._search = _open(self.search_path, threads, providers, cache)
         if provider is not None and providers[0] not in self._search.get_providers():
             raise InputError(f"provider '{provider}' could not be started (onnxruntime fell back to CPU)")
         self._meta = self._read_metadata()
         self._check_io()
+        self._binding: ort.IOBinding | None = None
+        self._bound: dict[str, np.ndarray] | None = None
 
     @property
     def meta(self) -> Mapping[str, str]:
@@ -170,16 +215,37 @@ class OnnxBackend:
             if name not in outputs:
                 raise ModelError(f"{self.search_path}: output '{name}' is missing")
             _check_shape(self.search_path, outputs[name], (1, channels, s, s), "metadata score_size")
+        # Buffers the IO binding points at: the tracker crops straight into `input_buffer`.
+        self.input_buffer = np.zeros((1, 3, geo.instance_size, geo.instance_size), np.float32)
+        self._outputs = {"cls": np.zeros((1, 2, s, s), np.float32), "loc": np.zeros((1, 4, s, s), np.float32)}
 
     def template(self, z: np.ndarray) -> dict[str, np.ndarray]:
         """All template-graph outputs by name (head kernels and diagnostic features)."""
         values = self._template.run(None, {self._z_name: z})
-        return dict(zip(self._template_outputs, values, strict=True))
+        feeds = dict(zip(self._template_outputs, values, strict=True))
+        self._bind(feeds)
+        return feeds
+
+    def _bind(self, feeds: dict[str, np.ndarray]) -> None:
+        """Bind one target's kernels, the input buffer and the output buffers to the search session."""
+        binding = self._search.io_binding()
+        kept = {name: np.ascontiguousarray(feeds[name], dtype=np.float32) for name in self._feed_names}
+        for name, value in kept.items():
+            binding.bind_cpu_input(name, value)
+        binding.bind_cpu_input(self._x_name, self.input_buffer)
+        for name, buffer in self._outputs.items():
+            binding.bind_output(name, "cpu", 0, np.float32, list(buffer.shape), buffer.ctypes.data)
+        self._binding, self._bound, self._kept = binding, feeds, kept
 
     def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """(cls, loc) for one search crop, with the kernels taken from `feeds` by input name."""
-        inputs = {self._x_name: x}
-        for name in self._feed_names:
-            inputs[name] = feeds[name]
-        cls, loc = self._search.run(["cls", "loc"], inputs)
-        return cls, loc
+        """(cls, loc) for one search crop, with the kernels taken from `feeds` by input name.
+
+        One bound session call; `x` is copied only when it is not `input_buffer` itself, and the kernels
+        are bound again only when `feeds` is not the dict the last `template` call returned.
+        """
+        if self._binding is None or feeds is not self._bound:
+            self._bind(feeds)
+        if x is not self.input_buffer:
+            np.copyto(self.input_buffer, x)
+        self._search.run_with_iobinding(self._binding)
+        return self._outputs["cls"].copy(), self._outputs["loc"].copy()

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import time
+from collections import deque
 
 import numpy as np
+
+KEPT_LATENCIES = 100_000  # percentiles over the most recent frames: a service running for days stays bounded
 
 
 class RunStats:
@@ -14,7 +17,9 @@ class RunStats:
         self.frames = 0
         self.lost = 0
         self.skipped = 0
-        self.latencies: list[float] = []
+        self.tracked = 0
+        self.latency_sum = 0.0
+        self.latencies: deque[float] = deque(maxlen=KEPT_LATENCIES)
         self.fps_recent: float | None = None
         self.begin()
 
@@ -28,6 +33,8 @@ class RunStats:
         self.frames += 1
         self.lost += state == "lost"
         if latency is not None:
+            self.tracked += 1
+            self.latency_sum += latency
             self.latencies.append(latency)
         self._window_frames += 1
         now = time.perf_counter()
@@ -44,11 +51,10 @@ class RunStats:
     def summary(self, interrupted: bool = False) -> str:
         elapsed = max(self.elapsed, 1e-9)
         line = f"{self.frames} frames, {self.lost} lost, {self.skipped} skipped"
-        line += f"; mean {len(self.latencies) / elapsed:.1f} FPS end to end"
-        if self.latencies:
-            lat = np.asarray(self.latencies) * 1000
-            p50, p95 = np.percentile(lat, [50, 95])
-            line += f"; tracker {1000 / lat.mean():.1f} FPS, latency p50 {p50:.2f} ms, p95 {p95:.2f} ms"
+        line += f"; mean {self.tracked / elapsed:.1f} FPS end to end"
+        if self.tracked:
+            p50, p95 = np.percentile(np.asarray(self.latencies) * 1000, [50, 95])
+            line += f"; tracker {self.tracked / self.latency_sum:.1f} FPS, latency p50 {p50:.2f} ms, p95 {p95:.2f} ms"
         if interrupted:
             line += " (interrupted)"
         return line

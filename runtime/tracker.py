@@ -103,9 +103,9 @@ class Tracker:
         pad = self.geometry.context_amount * (w + h)
         return math.sqrt((w + pad) * (h + pad))
 
-    def _crop(self, image: np.ndarray, out_size: int, side: float) -> np.ndarray:
+    def _crop(self, image: np.ndarray, out_size: int, side: float, out: np.ndarray | None = None) -> np.ndarray:
         patch = subwindow(image, self._centre, out_size, crop_side(side), self._fill)
-        return to_blob(patch, self.geometry.channel_order)
+        return to_blob(patch, self.geometry.channel_order, out)
 
     def init(self, frame: np.ndarray, box: Sequence[float]) -> None:
         """Start tracking `box` = (x, y, w, h) in `frame`; runs the template graph once.
@@ -131,7 +131,9 @@ class Tracker:
         growth = self._monitor.growth
         s_z = self._context_side()
         scale = g.exemplar_size / s_z / growth  # crop pixels per frame pixel
-        x = self._crop(image, g.instance_size, s_z * g.instance_size / g.exemplar_size * growth)
+        # Backends that bind their input (OnnxBackend) take the crop in place; others get a fresh array.
+        x = self._crop(image, g.instance_size, s_z * g.instance_size / g.exemplar_size * growth,
+                       getattr(self.backend, "input_buffer", None))
         t1 = time.perf_counter()
         cls, loc = self.backend.search(x, self._feeds)
         t2 = time.perf_counter()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,19 @@ def fixture_dir() -> Path:
     if not FIXTURES.is_dir():
         pytest.skip(f"official fixtures not found at {FIXTURES}")
     return FIXTURES
+
+
+@pytest.fixture(scope="session", autouse=True)
+def ort_cache_dir(tmp_path_factory) -> Path:
+    """Optimised-graph cache of the runtime in a temporary folder (subprocesses inherit it), not ~/.cache."""
+    path = tmp_path_factory.mktemp("ort-cache")
+    previous = os.environ.get("DADIFF_CACHE_DIR")
+    os.environ["DADIFF_CACHE_DIR"] = str(path)
+    yield path
+    if previous is None:
+        os.environ.pop("DADIFF_CACHE_DIR", None)
+    else:
+        os.environ["DADIFF_CACHE_DIR"] = previous
 
 
 @pytest.fixture(scope="session")
