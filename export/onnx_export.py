@@ -223,6 +223,9 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
         with torch.no_grad():
             template_values = TemplateGraph(net)(z)
         kernels = template_values[len(loaded.config.level_names):]
+        gflop_search = count_gflop(SearchGraph(net), x, *kernels)
+        gflop_template = count_gflop(TemplateGraph(net), z)
+        meta |= {"gflop_search": f"{gflop_search:.4f}", "gflop_template": f"{gflop_template:.4f}"}
         _export_graph(TemplateGraph(net), (z,), staging / TEMPLATE_FILE, ["z"], template_outputs, opset,
                       meta | {"graph": "template"})
         _export_graph(SearchGraph(net), (x, *kernels), staging / SEARCH_FILE, ["x", *kernel_inputs],
@@ -239,7 +242,7 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
                               f"{tolerance:g}); no files written")
         report = ExportReport(
             out_dir=out, files={f: (staging / f).stat().st_size for f in (TEMPLATE_FILE, SEARCH_FILE)},
-            gflop_search=count_gflop(SearchGraph(net), x, *kernels), gflop_template=count_gflop(TemplateGraph(net), z),
+            gflop_search=gflop_search, gflop_template=gflop_template,
             parity=parity, parity_abs={k: v[0] for k, v in errors.items()})
         out.mkdir(parents=True, exist_ok=True)
         for f in (TEMPLATE_FILE, SEARCH_FILE):

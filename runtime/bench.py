@@ -1,0 +1,235 @@
+"""Where a frame's time goes: per-stage latency, throughput and memory of the tracker on a night video.
+
+The stages follow a frame through the onboard pipeline: video decode, search crop, the ONNX search call,
+box decoding and state (post), and packing the MAVLink CAMERA_TRACKING_IMAGE_STATUS (275) the drone sends;
+the template branch runs once per target and is timed per init. The video is generated (runtime/scenes.py,
+test photos), written with the codec dadiff-run reads, and looped with a re-init for long runs.
+"""
+
+from __future__ import annotations
+
+import resource
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .evaluate import protocol_box
+from .metrics import Scores, SequenceCurves, summarise
+from .scenes import make_sequence
+from .tracker import Tracker, TrackResult
+
+STAGES = ("decode", "crop", "search", "post", "encode", "tracker", "frame")
+RSS_EVERY = 500  # frames between resident-memory samples
+
+
+@dataclass(frozen=True)
+class NightVideo:
+    path: Path
+    name: str
+    first_box: tuple[float, float, float, float]
+    frames: int
+
+
+def write_night_video(folder: Path, seed: int = 0, frames: int = 300) -> NightVideo:
+    """Render generated night sequence `seed` (test photos) to `folder`/night-<seed>.mp4."""
+    sequence = make_sequence(seed, split="test", frames=frames)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"night-{seed}.mp4"
+    height, width = sequence.night[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (width, height))
+    if not writer.isOpened():
+        raise OSError(f"{path}: cannot write video (mp4v)")
+    for frame in sequence.night:
+        writer.write(frame)
+    writer.release()
+    return NightVideo(path, sequence.name, protocol_box(sequence.boxes[0]), frames)
+
+
+def rss_bytes() -> int:
+    """Resident memory of this process now (Linux /proc; peak RSS elsewhere)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * resource.getpagesize()
+    except OSError:
+        return peak_rss_bytes()
+
+
+def peak_rss_bytes() -> int:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+class StatusEncoder:
+    """Packs the 275 message for a result exactly as the drone's camera component does."""
+
+    def __init__(self) -> None:
+        from dadiff.drone.camera import tracking_status  # the drone side is torch-free too
+        from dadiff.drone.mav import mavlink
+        from dadiff.drone.tracking import Snapshot
+
+        self._status, self._snapshot = tracking_status, Snapshot
+        self._mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_CAMERA)
+
+    def __call__(self, result: TrackResult, frame_size: tuple[int, int], index: int) -> bytes:
+        snapshot = self._snapshot(
+            seq=index, target_id=1, state=result.state, box=result.box, score=result.score,
+            frame_size=frame_size, frame_index=index,
+        )
+        return self._status(snapshot).pack(self._mav)
+
+
+@dataclass
+class BenchRun:
+    """Raw per-frame timings (seconds) after warm-up, init timings, and memory samples."""
+
+    frames: int
+    seconds: float
+    stages: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES})
+    template: list[float] = field(default_factory=list)
+    rss: list[tuple[int, int]] = field(default_factory=list)  # (frame, bytes)
+    peak_rss: int = 0
+
+    def summary(self) -> dict:
+        """Medians and p95 in ms per stage, end-to-end FPS, the share outside the ONNX call, memory."""
+        out: dict = {"frames": self.frames, "seconds": self.seconds, "fps": self.frames / self.seconds}
+        for name, values in {**self.stages, "template": self.template}.items():
+            ms = np.asarray(values) * 1000
+            out[name] = {"p50": float(np.median(ms)), "p95": float(np.percentile(ms, 95))} if len(ms) else None
+        tracker, frame, search = (np.asarray(self.stages[k]) for k in ("tracker", "frame", "search"))
+        out["outside_onnx_tracker"] = float(np.median((tracker - search) / tracker))
+        out["outside_onnx_frame"] = float(np.median((frame - search) / frame))
+        first, last = self.rss[0][1], self.rss[-1][1]
+        out["rss_mb"] = {"first": first / 2**20, "last": last / 2**20, "growth": (last - first) / 2**20,
+                         "peak": self.peak_rss / 2**20, "samples": [(i, b / 2**20) for i, b in self.rss]}
+        return out
+
+
+def _open(video: NightVideo) -> cv2.VideoCapture:
+    capture = cv2.VideoCapture(str(video.path))
+    if not capture.isOpened():
+        raise OSError(f"{video.path}: cannot open video")
+    return capture
+
+
+def _init(tracker: Tracker, capture: cv2.VideoCapture, video: NightVideo) -> float:
+    ok, frame = capture.read()
+    if not ok:
+        raise OSError(f"{video.path}: cannot read the first frame")
+    start = time.perf_counter()
+    tracker.init(frame, video.first_box)
+    return time.perf_counter() - start
+
+
+def run_bench(
+    tracker: Tracker, video: NightVideo, frames: int, warmup: int = 20, template_runs: int = 10,
+    progress: Callable[[int], None] | None = None,
+) -> BenchRun:
+    """Track `frames` frames (after `warmup` untimed ones), looping the video with a re-init at its start."""
+    encode = StatusEncoder()
+    capture = _open(video)
+    template = []
+    for _ in range(template_runs):  # the template branch on its own, then the real init
+        capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
+        template.append(_init(tracker, capture, video))
+    run = BenchRun(frames=frames, seconds=0.0, template=template[1:])
+    started = time.perf_counter()
+    try:
+        for i in range(-warmup, frames):
+            if i == 0:
+                started = time.perf_counter()
+                run.rss.append((0, rss_bytes()))
+            t0 = time.perf_counter()
+            ok, frame = capture.read()
+            if not ok:  # end of the clip: start it again on the same target
+                capture.release()
+                capture = _open(video)
+                run.template.append(_init(tracker, capture, video))
+                t0 = time.perf_counter()
+                ok, frame = capture.read()
+            t1 = time.perf_counter()
+            result = tracker.update(frame)
+            t2 = time.perf_counter()
+            encode(result, (frame.shape[1], frame.shape[0]), i)
+            t3 = time.perf_counter()
+            if i < 0:
+                continue
+            lat = result.latency
+            for name, value in (("decode", t1 - t0), ("crop", lat["crop"]), ("search", lat["search"]),
+                                ("post", lat["post"]), ("encode", t3 - t2), ("tracker", t2 - t1), ("frame", t3 - t0)):
+                run.stages[name].append(value)
+            if (i + 1) % RSS_EVERY == 0 or i == frames - 1:
+                run.rss.append((i + 1, rss_bytes()))
+            if progress is not None:
+                progress(i + 1)
+    finally:
+        capture.release()
+    run.seconds = time.perf_counter() - started
+    run.peak_rss = peak_rss_bytes()
+    return run
+
+
+def search_crops(tracker: Tracker, video: NightVideo, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(z, xs): the template crop and the first `count` search crops the tracker makes on the video."""
+    backend, seen = tracker.backend, {}
+    template, search = backend.template, backend.search
+
+    def record_template(z: np.ndarray) -> dict[str, np.ndarray]:
+        seen["z"] = z.copy()
+        return template(z)
+
+    xs = []
+
+    def record_search(x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        xs.append(x.copy())
+        return search(x, feeds)
+
+    backend.template, backend.search = record_template, record_search
+    try:
+        capture = _open(video)
+        _init(tracker, capture, video)
+        while len(xs) < count:
+            ok, frame = capture.read()
+            if not ok:
+                break
+            tracker.update(frame)
+        capture.release()
+    finally:
+        del backend.template, backend.search
+    return seen["z"], np.concatenate(xs)
+
+
+def time_search(tracker: Tracker, z: np.ndarray, xs: np.ndarray, repeats: int = 3) -> list[float]:
+    """Seconds per search-graph call on exactly these crops (the ORT side of the torch comparison)."""
+    backend = tracker.backend
+    feeds = backend.template(z)
+    backend.search(xs[:1], feeds)
+    times = []
+    for _ in range(repeats):
+        for x in xs:
+            start = time.perf_counter()
+            backend.search(x[None], feeds)
+            times.append(time.perf_counter() - start)
+    return times
+
+
+def night_sequences(count: int, frames: int, seed: int = 1000) -> list[tuple[list[np.ndarray], np.ndarray]]:
+    """`count` generated night sequences (test photos): (frames, ground-truth boxes) each."""
+    out = []
+    for i in range(count):
+        sequence = make_sequence(seed + i, split="test", frames=frames)
+        out.append((sequence.night, sequence.boxes))
+    return out
+
+
+def night_success(tracker: Tracker, sequences: list[tuple[list[np.ndarray], np.ndarray]]) -> Scores:
+    """One-pass evaluation (the protocol of dadiff-eval) on generated night sequences."""
+    curves = []
+    for frames, boxes in sequences:
+        first = protocol_box(boxes[0])
+        tracker.init(frames[0], first)
+        predicted = [first] + [tracker.update(frame).box for frame in frames[1:]]
+        curves.append(SequenceCurves.from_boxes(boxes, predicted))
+    return summarise(curves)

@@ -1,0 +1,254 @@
+"""`dadiff-bench [MODEL ...]`: per-stage latency, FPS and memory of one or more models, side by side.
+
+The models run one after another on the same generated night video (same frames, same threads); the first
+is the reference for the ratios. `--compare-torch` times the PyTorch graph on the same crops (a subprocess:
+this package never imports torch), `--sweep-steps` re-exports a checkpoint with other DDIM step counts and
+sets speed beside night success, `--peak` measures the CPU's arithmetic limit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+from tqdm import tqdm
+
+from dadiff.models import ModelNotFoundError, resolve
+
+from .bench import NightVideo, night_sequences, night_success, run_bench, search_crops, time_search, write_night_video
+from .cli import positive_int
+from .errors import InputError, ModelError
+from .onnx_backend import physical_cores
+from .tracker import Tracker
+
+ROWS = (
+    ("decode", "video decode"), ("crop", "search crop"), ("search", "search graph (ONNX)"),
+    ("post", "decode box + state"), ("encode", "MAVLink 275 encode"), ("tracker", "Tracker.update"),
+    ("frame", "frame end to end"), ("template", "template branch (per init)"),
+)
+
+
+class BenchError(Exception):
+    """One line for the user."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="dadiff-bench", description=__doc__)
+    p.add_argument("models", nargs="*", help="model folders or shipped names (default: the shipped default)")
+    p.add_argument("--frames", type=positive_int, default=1000, help="timed frames per model (default 1000)")
+    p.add_argument("--warmup", type=int, default=20, help="untimed frames first (default 20)")
+    p.add_argument("--clip", type=positive_int, default=300, help="length of the generated clip, looped (300)")
+    p.add_argument("--seed", type=int, default=0, help="generated night sequence (default 0, test photos)")
+    p.add_argument("--threads", type=positive_int, help="intra-op threads (default: physical cores)")
+    p.add_argument("--provider", help="onnxruntime execution provider (default: the best available)")
+    p.add_argument("--success", type=int, default=0, metavar="N",
+                   help="also score night success on N generated test sequences per model")
+    p.add_argument("--success-frames", type=positive_int, default=100, help="frames per success sequence (100)")
+    p.add_argument("--compare-torch", action="store_true",
+                   help="time the PyTorch graph on the same crops (needs dadiff[export] and a checkpoint)")
+    p.add_argument("--checkpoint", help="checkpoint of the first model (default: checkpoint.pt in its folder)")
+    p.add_argument("--sweep-steps", help="comma-separated DDIM step counts to re-export and compare, e.g. 1,2,4")
+    p.add_argument("--peak", action="store_true", help="measure the CPU's arithmetic limit (needs dadiff[export])")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
+    return p
+
+
+def _export_side(what: str) -> None:
+    """Fail early, in one line, when torch or the export package is missing (found without importing them)."""
+    try:
+        found = all(importlib.util.find_spec(name) is not None for name in ("torch", "onnx", "dadiff.export"))
+    except ImportError:
+        found = False
+    if not found:
+        raise BenchError(f"{what} needs the export side: pip install 'dadiff[export]'")
+
+
+def _subprocess_json(args: list[str], what: str) -> dict:
+    done = subprocess.run([sys.executable, *args], capture_output=True, text=True)
+    if done.returncode != 0:
+        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        raise BenchError(f"{what} failed: {tail}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _checkpoint(args: argparse.Namespace, folder: Path) -> Path:
+    path = Path(args.checkpoint) if args.checkpoint else folder / "checkpoint.pt"
+    if not path.is_file():
+        raise BenchError(f"{path}: checkpoint not found (give --checkpoint)")
+    return path
+
+
+def _ms(values: Sequence[float]) -> dict[str, float]:
+    ms = np.asarray(values) * 1000
+    return {"p50": float(np.median(ms)), "p95": float(np.percentile(ms, 95))}
+
+
+def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, sequences: list) -> dict:
+    tracker = Tracker.load(model, provider=args.provider, threads=args.threads)
+    meta = tracker.backend.meta
+    bar = tqdm(total=args.frames, desc=meta.get("name", model.name), unit="frame", leave=False,
+               disable=args.json or not sys.stderr.isatty())
+    try:
+        run = run_bench(tracker, video, args.frames, args.warmup, progress=lambda _: bar.update())
+    finally:
+        bar.close()
+    result = {"model": str(model), "name": meta.get("name", model.name), "precision": meta.get("precision", "fp32"),
+              "ddim_steps": int(meta.get("ddim_steps", 0)), "gflop_search": float(meta.get("gflop_search", "nan")),
+              "providers": list(getattr(tracker.backend, "providers", [])), **run.summary()}
+    if sequences:
+        scores = night_success(tracker, sequences)
+        result["night"] = {"success": scores.success, "precision": scores.precision, "sequences": scores.sequences}
+    if args.compare_torch and model == Path(args.models_resolved[0]):
+        result["torch"] = _compare_torch(tracker, model, args, video)
+    return result
+
+
+def _compare_torch(tracker: Tracker, model: Path, args: argparse.Namespace, video: NightVideo) -> dict:
+    checkpoint = _checkpoint(args, model)
+    z, xs = search_crops(tracker, video, 50)
+    ort_times = time_search(tracker, z, xs)
+    with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
+        crops = Path(tmp) / "crops.npz"
+        np.savez(crops, z=z, xs=xs)
+        threads = args.threads or physical_cores()
+        torch_out = _subprocess_json(
+            ["-m", "dadiff.export.bench_torch", "search", str(checkpoint), str(crops), "--threads", str(threads),
+             "--steps", tracker.backend.meta["ddim_steps"]], "the PyTorch run")
+    ort_ms, torch_ms = _ms(ort_times), _ms(torch_out["times"])
+    return {"checkpoint": str(checkpoint), "crops": len(xs), "torch_version": torch_out["torch"],
+            "ort": ort_ms, "torch_eager": torch_ms, "ratio": torch_ms["p50"] / ort_ms["p50"]}
+
+
+def _sweep_models(args: argparse.Namespace, tmp: Path) -> list[Path]:
+    first = Path(args.models_resolved[0])
+    checkpoint = _checkpoint(args, first)
+    try:
+        steps = [int(s) for s in args.sweep_steps.split(",") if s.strip()]
+    except ValueError:
+        raise BenchError(f"--sweep-steps must be comma-separated integers, got {args.sweep_steps!r}") from None
+    folders = []
+    for k in steps:
+        out = tmp / f"k{k}"
+        done = subprocess.run([sys.executable, "-m", "dadiff.export.cli", str(checkpoint), "--steps", str(k), "-o",
+                               str(out), "--name", f"{first.name}-k{k}"], capture_output=True, text=True)
+        if done.returncode != 0:
+            raise BenchError(f"exporting {checkpoint} with {k} steps failed: {done.stderr.strip()}")
+        folders.append(out)
+    return folders
+
+
+def _cpu() -> dict:
+    model = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), model)
+    except OSError:
+        pass
+    return {"cpu": model, "logical": os.cpu_count(), "physical": physical_cores(), "onnxruntime": ort.__version__}
+
+
+def _cell(entry: dict | None) -> str:
+    return "-" if entry is None else f"{entry['p50']:.2f} / {entry['p95']:.2f}"
+
+
+def _ratio(base: float, value: float) -> str:
+    """' (1.53x)' for value/base, empty for the reference itself."""
+    return "" if base == value else f" ({value / base:.2f}x)"
+
+
+def print_report(report: dict) -> None:
+    results = report["results"]
+    ref = results[0]
+    head = report["machine"]
+    print(f"dadiff-bench: {head['cpu']}, {head['logical']} logical / {head['physical']} physical cores, "
+          f"onnxruntime {head['onnxruntime']}, {report['threads']} threads; {report['video']} "
+          f"({report['frames']} timed frames after {report['warmup']} warm-up, clip looped with re-init)")
+    width = max(22, *(len(r["name"]) + 2 for r in results))
+    print(f"{'ms (p50 / p95)':28s}" + "".join(f"{r['name']:>{width}s}" for r in results))
+    for key, label in ROWS:
+        print(f"{label:28s}" + "".join(f"{_cell(r.get(key)):>{width}s}" for r in results))
+    lines = {
+        "FPS end to end": lambda r: f"{r['fps']:.1f}" + _ratio(ref["fps"], r["fps"]),
+        "outside ONNX (of update)": lambda r: f"{100 * r['outside_onnx_tracker']:.1f} %",
+        "outside ONNX (of frame)": lambda r: f"{100 * r['outside_onnx_frame']:.1f} %",
+        "RSS first -> last (MB)": lambda r: f"{r['rss_mb']['first']:.0f} -> {r['rss_mb']['last']:.0f}",
+        "peak RSS (MB)": lambda r: f"{r['rss_mb']['peak']:.0f}",
+        "precision / DDIM steps": lambda r: f"{r['precision']} / {r['ddim_steps']}",
+    }
+    if all("night" in r for r in results):
+        lines["night success (prec.)"] = lambda r: f"{r['night']['success']:.3f} ({r['night']['precision']:.3f})"
+    for label, fmt in lines.items():
+        print(f"{label:28s}" + "".join(f"{fmt(r):>{width}s}" for r in results))
+    for r in results:
+        if "torch" in r:
+            t = r["torch"]
+            print(f"{r['name']}: search graph on {t['crops']} identical crops: onnxruntime p50 "
+                  f"{t['ort']['p50']:.2f} ms, PyTorch {t['torch_version']} eager p50 "
+                  f"{t['torch_eager']['p50']:.2f} ms -> onnxruntime {t['ratio']:.2f}x faster")
+    if "peak_gflops" in report:
+        peak = report["peak_gflops"]
+        print(f"arithmetic limit: {peak:.0f} GFLOP/s (onnxruntime's dense 3x3 conv on {report['threads']} threads)")
+        for r in results:
+            if np.isfinite(r["gflop_search"]):
+                floor = r["gflop_search"] / peak * 1000
+                print(f"  {r['name']}: {r['gflop_search']:.2f} GFLOP per frame -> at least {floor:.1f} ms; "
+                      f"measured {r['search']['p50']:.1f} ms = {100 * floor / r['search']['p50']:.0f} % of the limit")
+
+
+def run(args: argparse.Namespace) -> dict:
+    if args.compare_torch:
+        _export_side("--compare-torch")
+    if args.peak or args.sweep_steps:
+        _export_side("--peak" if args.peak else "--sweep-steps")
+    try:
+        args.models_resolved = [resolve(m) for m in (args.models or [None])]
+    except ModelNotFoundError as exc:
+        raise ModelError(str(exc)) from None
+    threads = args.threads or physical_cores()
+    with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
+        models = list(args.models_resolved)
+        if args.sweep_steps:
+            models += _sweep_models(args, Path(tmp))
+        video = write_night_video(Path(tmp), args.seed, args.clip)
+        sequences = night_sequences(args.success, args.success_frames) if args.success > 0 else []
+        results = [_bench_model(Path(m), args, video, sequences) for m in models]
+    report = {"machine": _cpu(), "threads": threads, "video": f"generated night sequence {video.name}",
+              "frames": args.frames, "warmup": args.warmup, "results": results}
+    if args.peak:
+        report["peak_gflops"] = _subprocess_json(
+            ["-m", "dadiff.export.bench_torch", "peak", "--threads", str(threads)], "the peak measurement")["gflops"]
+    return report
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.warmup < 0 or args.success < 0:
+        print("dadiff-bench: error: --warmup and --success must be >= 0", file=sys.stderr)
+        return 2
+    try:
+        report = run(args)
+    except (BenchError, ModelError, InputError, OSError) as exc:
+        print(f"dadiff-bench: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("dadiff-bench: interrupted", file=sys.stderr)
+        return 130
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print_report(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""`dadiff-bench`: the report's structure, the torch comparison and step sweep, and one-line errors.
+
+Structure only: no assertion here depends on how fast this machine is.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from dadiff.runtime import bench_cli
+from dadiff.runtime.bench import STAGES
+from runtime_models import write_corr_model
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_corr_model(tmp_path_factory.mktemp("bench") / "corr-test")
+
+
+def _report(capsys: pytest.CaptureFixture[str], argv: list[str]) -> dict:
+    assert bench_cli.main([*argv, "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_report_has_every_stage_and_memory(model_dir: Path, capsys) -> None:
+    report = _report(capsys, [str(model_dir), "--frames", "40", "--clip", "15", "--warmup", "3", "--threads", "1"])
+    (result,) = report["results"]
+    assert result["frames"] == 40 and result["fps"] > 0
+    for stage in (*STAGES, "template"):
+        assert 0 < result[stage]["p50"] <= result[stage]["p95"], stage
+    # the 15-frame clip is looped: the template branch ran at every restart, plus the timed inits
+    assert len(result["rss_mb"]["samples"]) == 2 and result["rss_mb"]["peak"] >= result["rss_mb"]["last"] > 0
+    assert 0 < result["outside_onnx_tracker"] < 1 and 0 < result["outside_onnx_frame"] < 1
+    assert report["threads"] == 1 and report["machine"]["physical"] >= 1
+
+
+def test_two_models_side_by_side_with_night_success(model_dir: Path, capsys) -> None:
+    argv = [str(model_dir), str(model_dir), "--frames", "10", "--clip", "8", "--warmup", "1", "--success", "1",
+            "--success-frames", "12"]
+    assert bench_cli.main(argv) == 0
+    out = capsys.readouterr().out
+    for label in ("search graph (ONNX)", "MAVLink 275 encode", "FPS end to end", "night success", "peak RSS"):
+        assert label in out
+    assert "x)" in out.split("FPS end to end")[1].splitlines()[0]  # second model: ratio to the first
+
+
+def test_torch_comparison_and_step_sweep(lite_checkpoint: Path, lite_model_dir: Path, capsys) -> None:
+    argv = [str(lite_model_dir), "--checkpoint", str(lite_checkpoint), "--compare-torch", "--sweep-steps", "1",
+            "--frames", "4", "--clip", "6", "--warmup", "1", "--threads", "1"]
+    report = _report(capsys, argv)
+    first, k1 = report["results"]
+    assert first["torch"]["crops"] == 5 and first["torch"]["ratio"] > 0
+    assert first["torch"]["torch_eager"]["p50"] > 0 and first["torch"]["ort"]["p50"] > 0
+    assert (first["ddim_steps"], k1["ddim_steps"]) == (2, 1)
+    assert first["gflop_search"] > k1["gflop_search"] > 0  # one denoiser call less
+
+
+def test_peak_is_measured(model_dir: Path, capsys) -> None:
+    report = _report(capsys, [str(model_dir), "--frames", "3", "--clip", "5", "--warmup", "0", "--peak"])
+    assert report["peak_gflops"] > 1
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["/no/such/model"], "/no/such/model"),
+        (["{model}", "--compare-torch", "--frames", "2"], "checkpoint.pt: checkpoint not found"),
+        (["{model}", "--sweep-steps", "one", "--checkpoint", "{model}/search.onnx"], "--sweep-steps"),
+        (["{model}", "--success", "-1"], "--success must be >= 0"),
+    ],
+)
+def test_bad_input_is_one_line(model_dir: Path, capsys, argv: list[str], expected: str) -> None:
+    argv = [a.replace("{model}", str(model_dir)) for a in argv]
+    assert bench_cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and expected in err and err.startswith("dadiff-bench: error:")
