@@ -56,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--success-frames", type=positive_int, default=100, help="frames per success sequence (100)")
     p.add_argument("--compare-torch", action="store_true",
                    help="time the PyTorch graph on the same crops (needs dadiff[export] and a checkpoint)")
+    p.add_argument("--torch-crops", type=positive_int, default=50,
+                   help="search crops timed on both engines for --compare-torch (default 50, each run 3 times)")
     p.add_argument("--checkpoint", help="checkpoint of the first model (default: checkpoint.pt in its folder)")
     p.add_argument("--sweep-steps", help="comma-separated DDIM step counts to re-export and compare, e.g. 1,2,4")
     p.add_argument("--peak", action="store_true", help="measure the CPU's arithmetic limit (needs dadiff[export])")
@@ -115,7 +117,7 @@ def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, seque
 
 def _compare_torch(tracker: Tracker, model: Path, args: argparse.Namespace, video: NightVideo) -> dict:
     checkpoint = _checkpoint(args, model)
-    z, xs = search_crops(tracker, video, 50)
+    z, xs = search_crops(tracker, video, args.torch_crops)
     ort_times = time_search(tracker, z, xs)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         crops = Path(tmp) / "crops.npz"
