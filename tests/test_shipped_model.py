@@ -1,0 +1,41 @@
+"""The shipped models: no random ops, the informational metadata, and the checkpoint shipped beside them."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import pytest
+
+from dadiff import models
+
+
+def _shipped() -> list:
+    return [models.resolve(name) for name in models.list_models()]
+
+
+@pytest.mark.parametrize("folder", _shipped(), ids=lambda p: p.name)
+def test_graphs_are_deterministic_and_describe_their_cost(folder) -> None:
+    for graph in ("template", "search"):
+        model = onnx.load(str(folder / f"{graph}.onnx"))
+        assert not [n.op_type for n in model.graph.node if n.op_type.startswith("Random")]
+        meta = {p.key: p.value for p in model.metadata_props}
+        assert float(meta["gflop_search"]) > 0 and float(meta["gflop_template"]) > 0
+
+
+def test_default_checkpoint_reproduces_the_shipped_graphs() -> None:
+    """checkpoint.pt is what --compare-torch and --sweep-steps start from: it must be the shipped weights."""
+    pytest.importorskip("torch")
+    from dadiff.export.checkpoint import load_checkpoint
+    from dadiff.export.reference import TorchBackend
+    from dadiff.runtime import OnnxBackend
+
+    folder = models.resolve(models.DEFAULT_MODEL)
+    torch_side = TorchBackend(load_checkpoint(folder / "checkpoint.pt"))
+    onnx_side = OnnxBackend(folder, threads=1)
+    rng = np.random.default_rng(11)
+    z = rng.integers(0, 256, (1, 3, 127, 127)).astype(np.float32)
+    x = rng.integers(0, 256, (1, 3, 255, 255)).astype(np.float32)
+    ref_cls, ref_loc = torch_side.search(x, torch_side.template(z))
+    cls, loc = onnx_side.search(x, onnx_side.template(z))
+    assert np.abs(cls - ref_cls).max() < 1e-4
+    assert np.abs(loc - ref_loc).max() / max(1.0, np.abs(ref_loc).max()) < 1e-4
