@@ -95,7 +95,8 @@ def _ms(values: Sequence[float]) -> dict[str, float]:
     return {"p50": float(np.median(ms)), "p95": float(np.percentile(ms, 95))}
 
 
-def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, sequences: list) -> dict:
+def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, sequences: list, torch: bool) -> dict:
+    """One model's report; `torch`: also time the PyTorch graph on the same crops."""
     tracker = Tracker.load(model, provider=args.provider, threads=args.threads)
     meta = tracker.backend.meta
     bar = tqdm(total=args.frames, desc=meta.get("name", model.name), unit="frame", leave=False,
@@ -110,7 +111,7 @@ def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, seque
     if sequences:
         scores = night_success(tracker, sequences)
         result["night"] = {"success": scores.success, "precision": scores.precision, "sequences": scores.sequences}
-    if args.compare_torch and model == Path(args.models_resolved[0]):
+    if torch:
         result["torch"] = _compare_torch(tracker, model, args, video)
     return result
 
@@ -131,8 +132,8 @@ def _compare_torch(tracker: Tracker, model: Path, args: argparse.Namespace, vide
             "ort": ort_ms, "torch_eager": torch_ms, "ratio": torch_ms["p50"] / ort_ms["p50"]}
 
 
-def _sweep_models(args: argparse.Namespace, tmp: Path) -> list[Path]:
-    first = Path(args.models_resolved[0])
+def _sweep_models(first: Path, args: argparse.Namespace, tmp: Path) -> list[Path]:
+    """The first model's checkpoint exported once per --sweep-steps value, into `tmp`."""
     checkpoint = _checkpoint(args, first)
     try:
         steps = [int(s) for s in args.sweep_steps.split(",") if s.strip()]
@@ -213,17 +214,17 @@ def run(args: argparse.Namespace) -> dict:
     if args.peak or args.sweep_steps:
         _export_side("--peak" if args.peak else "--sweep-steps")
     try:
-        args.models_resolved = [resolve(m) for m in (args.models or [None])]
+        models = [Path(resolve(m)) for m in (args.models or [None])]
     except ModelNotFoundError as exc:
         raise ModelError(str(exc)) from None
     threads = args.threads or physical_cores()
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
-        models = list(args.models_resolved)
         if args.sweep_steps:
-            models += _sweep_models(args, Path(tmp))
+            models += _sweep_models(models[0], args, Path(tmp))
         video = write_night_video(Path(tmp), args.seed, args.clip)
         sequences = night_sequences(args.success, args.success_frames) if args.success > 0 else []
-        results = [_bench_model(Path(m), args, video, sequences) for m in models]
+        results = [_bench_model(m, args, video, sequences, args.compare_torch and i == 0)
+                   for i, m in enumerate(models)]
     report = {"machine": _cpu(), "threads": threads, "video": f"generated night sequence {video.name}",
               "frames": args.frames, "warmup": args.warmup, "results": results}
     if args.peak:
