@@ -1,20 +1,44 @@
-"""`dadiff-export checkpoint.pt`: checkpoint -> parity-checked ONNX model folder (docs/model-format.md)."""
+"""`dadiff-export checkpoint.pt`: checkpoint -> parity-checked ONNX model folder (docs/model-format.md).
+
+With `--quantize int8` the search graph of the exported model (or of an existing fp32 model folder) is
+quantised as well: export/quantize.py.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
+
+from dadiff.models import list_models, resolve
+from dadiff.runtime.sources import SourceError, open_source, parse_box
 
 from .checkpoint import CheckpointError, load_checkpoint
 from .config import FAMILIES, HP_PRESETS
 from .onnx_export import DEFAULT_OPSET, PARITY_TOLERANCE, SUPPORTED_OPSETS, ExportError, export_model
+from .quantize import (
+    DEFAULT_BENCH_RUNS,
+    DEFAULT_CALIBRATION_FRAMES,
+    DEFAULT_EVAL_FRAMES,
+    DEFAULT_EVAL_SEQUENCES,
+    DEFAULT_RECIPE,
+    PRECISIONS,
+    RECIPES,
+    QuantizeError,
+    QuantizeReport,
+    QuantizeSettings,
+    quantize_model,
+)
+
+PROG = "dadiff-export"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="dadiff-export", description=__doc__)
-    p.add_argument("checkpoint", help="released DaDiff-BAN checkpoint (.pth) or a dadiff checkpoint (.pt)")
-    p.add_argument("-o", "--output", help="output model folder (default: ./<name>)")
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint", help="released DaDiff-BAN checkpoint (.pth) or a dadiff checkpoint (.pt); with "
+                                      "--quantize also an fp32 model folder or shipped model name")
+    p.add_argument("-o", "--output", help="output model folder (default: ./<name>; ./<name>-int8 with --quantize)")
     p.add_argument("--name", help="model name stored in the metadata (default: the checkpoint's file stem)")
     p.add_argument("--steps", type=int, help="DDIM steps K to unroll (default: the checkpoint's, 2)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
@@ -24,7 +48,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hyper-parameter preset the runtime uses by default (default: the checkpoint's)")
     p.add_argument("--tolerance", type=float, default=PARITY_TOLERANCE,
                    help=f"max-abs torch/onnxruntime difference allowed (default {PARITY_TOLERANCE:g})")
+    _add_quantize_options(p)
     return p
+
+
+def _add_quantize_options(p: argparse.ArgumentParser) -> None:
+    q = p.add_argument_group("int8 quantisation (writes OUT = fp32 template.onnx + int8 search.onnx)")
+    q.add_argument("--quantize", metavar="PRECISION", help="quantise the search graph: int8")
+    q.add_argument("--calibration", metavar="SRC",
+                   help="video file or sequence folder to calibrate on (default: generated night scenes of the "
+                        "training photos)")
+    q.add_argument("--calibration-init", metavar="X,Y,W,H",
+                   help="target box in the first frame of --calibration when it has no ground-truth file")
+    q.add_argument("--calibration-frames", type=int, default=DEFAULT_CALIBRATION_FRAMES, metavar="N",
+                   help=f"search crops to calibrate on (default {DEFAULT_CALIBRATION_FRAMES})")
+    q.add_argument("--eval-sequences", type=int, default=DEFAULT_EVAL_SEQUENCES, metavar="N",
+                   help="sequences of the generated night test set used to compare fp32 and int8 "
+                        f"(default {DEFAULT_EVAL_SEQUENCES})")
+    q.add_argument("--eval-frames", type=int, default=DEFAULT_EVAL_FRAMES, metavar="N",
+                   help=f"frames per evaluation sequence (default {DEFAULT_EVAL_FRAMES})")
+    q.add_argument("--recipe", default=DEFAULT_RECIPE, choices=sorted(RECIPES),
+                   help=f"which parts stay in float (default {DEFAULT_RECIPE}; see export/quantize.py RECIPES)")
+    q.add_argument("--bench-runs", type=int, default=DEFAULT_BENCH_RUNS, metavar="N",
+                   help=f"search-graph runs per precision for the latency comparison, 0 to skip "
+                        f"(default {DEFAULT_BENCH_RUNS})")
 
 
 def _mb(n: int) -> str:
@@ -38,29 +85,152 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unsupported opset {args.opset}; use {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1}")
     if args.steps is not None and not 1 <= args.steps <= 20:
         parser.error(f"--steps must be in 1..20, got {args.steps}")
-    name = args.name or Path(args.checkpoint).stem
-    out = Path(args.output) if args.output else Path(name)
+    try:
+        if args.quantize is None:
+            _refuse_quantize_options(args)
+            name = args.name or Path(args.checkpoint).stem
+            return _export(args, Path(args.output) if args.output else Path(name), name)
+        settings = quantize_settings(args)
+        folder = model_folder(args.checkpoint)
+        if folder is not None:
+            _refuse_checkpoint_options(args)
+            out = Path(args.output) if args.output else Path(f"{folder.name}-int8")
+            print(f"{PROG}: {args.checkpoint}: fp32 model folder, quantising its search graph to int8", flush=True)
+            return _quantize(folder, out, settings)
+        name = args.name or Path(args.checkpoint).stem
+        out = Path(args.output) if args.output else Path(f"{name}-int8")
+        with tempfile.TemporaryDirectory(prefix="dadiff-export-") as tmp:
+            code = _export(args, Path(tmp) / name, name, label="fp32 model (temporary)")
+            return code or _quantize(Path(tmp) / name, out, settings)
+    except (CheckpointError, QuantizeError) as e:
+        return _fail(str(e))
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return code
+
+
+def model_folder(spec: str) -> Path | None:
+    """The fp32 model folder `spec` names (a folder, an .onnx file in one, a shipped name), or None."""
+    path = Path(spec).expanduser()
+    if path.is_dir():
+        return path
+    if path.is_file() and path.suffix.lower() == ".onnx":
+        return path.parent
+    if not path.exists() and spec in list_models():
+        return resolve(spec)
+    return None
+
+
+def quantize_settings(args: argparse.Namespace) -> QuantizeSettings:
+    """Check the quantisation options before anything slow runs; errors are one line (exit 2)."""
+    if args.quantize.lower() not in PRECISIONS:
+        raise QuantizeError(f"--quantize {args.quantize}: unsupported precision; available: {', '.join(PRECISIONS)}")
+    init = _init_box(args.calibration_init) if args.calibration_init is not None else None
+    if init is not None and args.calibration is None:
+        raise QuantizeError("--calibration-init applies to --calibration SRC only")
+    if args.calibration is not None:
+        _check_calibration_source(args.calibration, init)
+    settings = QuantizeSettings(calibration=args.calibration, init=init, frames=args.calibration_frames,
+                                eval_sequences=args.eval_sequences, eval_frames=args.eval_frames,
+                                bench_runs=args.bench_runs, recipe=args.recipe)
+    settings.check()
+    return settings
+
+
+def _init_box(text: str) -> tuple[float, float, float, float]:
+    try:
+        box = parse_box(text)
+    except ValueError as e:
+        raise QuantizeError(f"--calibration-init: {e}") from None
+    if box[2] <= 0 or box[3] <= 0:
+        raise QuantizeError(f"--calibration-init: width and height must be positive, got {text!r}")
+    return box
+
+
+def _check_calibration_source(spec: str, init: tuple[float, float, float, float] | None) -> None:
+    path = Path(spec).expanduser()
+    if not path.exists():
+        raise QuantizeError(f"--calibration {spec}: no such file or folder (give a video file or a sequence folder)")
+    try:
+        source = open_source(str(path))
+    except SourceError as e:
+        raise QuantizeError(f"--calibration: {e}") from None
+    has_truth = source.init_box is not None
+    source.close()
+    if init is None and not has_truth:
+        raise QuantizeError(f"--calibration {spec}: no ground-truth file to start from; give --calibration-init "
+                            "x,y,w,h (the target in its first frame)")
+
+
+def _refuse_quantize_options(args: argparse.Namespace) -> None:
+    given = [opt for opt, value, default in (
+        ("--calibration", args.calibration, None), ("--calibration-init", args.calibration_init, None),
+        ("--calibration-frames", args.calibration_frames, DEFAULT_CALIBRATION_FRAMES),
+        ("--eval-sequences", args.eval_sequences, DEFAULT_EVAL_SEQUENCES),
+        ("--eval-frames", args.eval_frames, DEFAULT_EVAL_FRAMES), ("--bench-runs", args.bench_runs, DEFAULT_BENCH_RUNS),
+        ("--recipe", args.recipe, DEFAULT_RECIPE),
+    ) if value != default]
+    if given:
+        raise QuantizeError(f"{given[0]} applies to --quantize int8 only")
+    if Path(args.checkpoint).is_dir():
+        raise QuantizeError(f"{args.checkpoint}: is a model folder, not a checkpoint; add --quantize int8 to "
+                            "quantise it")
+
+
+def _refuse_checkpoint_options(args: argparse.Namespace) -> None:
+    given = [opt for opt, value, default in (
+        ("--name", args.name, None), ("--steps", args.steps, None), ("--family", args.family, None),
+        ("--preset", args.preset, None), ("--opset", args.opset, DEFAULT_OPSET),
+        ("--tolerance", args.tolerance, PARITY_TOLERANCE),
+    ) if value != default]
+    if given:
+        raise QuantizeError(f"{given[0]} applies to checkpoints; {args.checkpoint} is an exported model folder")
+
+
+def _export(args: argparse.Namespace, out: Path, name: str, label: str | None = None) -> int:
+    """The fp32 export of a checkpoint, parity-gated; prints what it wrote."""
     try:
         loaded = load_checkpoint(args.checkpoint, family=args.family, steps=args.steps, preset=args.preset)
-        print(f"dadiff-export: {args.checkpoint}: {loaded.config.family} ({loaded.source} format, "
+        print(f"{PROG}: {args.checkpoint}: {loaded.config.family} ({loaded.source} format, "
               f"sha256 {loaded.sha256[:12]}…)", flush=True)
         report = export_model(loaded, out, name, args.opset, args.tolerance)
-    except CheckpointError as e:
-        print(f"dadiff-export: error: {e}", file=sys.stderr)
-        return 2
     except ExportError as e:
-        print(f"dadiff-export: error: {e}", file=sys.stderr)
-        return 1 if "parity" in str(e) else 2
+        return _fail(str(e), 1 if "parity" in str(e) else 2)
     sampler = loaded.model.sampler
     files = ", ".join(f"{f} {_mb(n)}" for f, n in report.files.items())
     parity = ", ".join(f"{k} {v:.1e}" for k, v in report.parity_abs.items())
-    print(f"  wrote {out}/: {files}")
+    print(f"  wrote {label or str(out) + '/'}: {files}")
     print(f"  GFLOP per search frame {report.gflop_search:.2f}, template (once) {report.gflop_template:.2f}; "
           f"DDIM {len(sampler.timesteps)} steps, timesteps {sampler.timesteps}, start t {sampler.start_t}")
     print(f"  parity torch vs onnxruntime (max-abs, relative where |output| > 1): {report.max_parity:.1e} "
           f"(tolerance {args.tolerance:g}) OK; max-abs per output [{parity}]")
-    print(f"  export time {report.seconds:.1f} s")
+    print(f"  export time {report.seconds:.1f} s", flush=True)
     return 0
+
+
+def _quantize(folder: Path, out: Path, settings: QuantizeSettings) -> int:
+    report = quantize_model(folder, out, settings, log=lambda line: print(line, flush=True))
+    print_quantize_report(report)
+    return 0
+
+
+def print_quantize_report(report: QuantizeReport) -> None:
+    """The measured numbers, as stored in the int8 graph's metadata."""
+    t, s = report.files["template.onnx"], report.files["search.onnx"]
+    print(f"  wrote {report.out_dir}/: template.onnx {_mb(t)} (fp32, unchanged), search.onnx {_mb(s)} (int8)")
+    d = report.deviation
+    print(f"  deviation from fp32 on {d['crops']} held-out crops: cls max-abs {d['cls_max_abs']:.3g}, mean-abs "
+          f"{d['cls_mean_abs']:.3g}; loc max-abs {d['loc_max_abs']:.3g}, mean-abs {d['loc_mean_abs']:.3g}; "
+          f"decoded cell the same in {d['cell_agreement']:.1%}, within one cell in {d['cell_within_one']:.1%}")
+    fp32, int8 = report.success["fp32"], report.success["int8"]
+    print(f"  night success ({report.success['set']}): fp32 {fp32:.3f}, int8 {int8:.3f} ({int8 - fp32:+.3f})")
+    lat = report.latency_ms
+    if lat:
+        print(f"  search latency (CPU, {lat['threads']} threads, median of {lat['runs']} runs each): fp32 "
+              f"{lat['fp32']:.2f} ms, int8 {lat['int8']:.2f} ms ({lat['fp32'] / lat['int8']:.2f}x)")
+    print(f"  quantisation time {report.seconds:.1f} s")
 
 
 if __name__ == "__main__":

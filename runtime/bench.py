@@ -18,7 +18,6 @@ import cv2
 import numpy as np
 
 from .evaluate import protocol_box
-from .metrics import Scores, SequenceCurves, summarise
 from .scenes import make_sequence
 from .tracker import Tracker, TrackResult
 
@@ -213,23 +212,3 @@ def time_search(tracker: Tracker, z: np.ndarray, xs: np.ndarray, repeats: int = 
             backend.search(x[None], feeds)
             times.append(time.perf_counter() - start)
     return times
-
-
-def night_sequences(count: int, frames: int, seed: int = 1000) -> list[tuple[list[np.ndarray], np.ndarray]]:
-    """`count` generated night sequences (test photos): (frames, ground-truth boxes) each."""
-    out = []
-    for i in range(count):
-        sequence = make_sequence(seed + i, split="test", frames=frames)
-        out.append((sequence.night, sequence.boxes))
-    return out
-
-
-def night_success(tracker: Tracker, sequences: list[tuple[list[np.ndarray], np.ndarray]]) -> Scores:
-    """One-pass evaluation (the protocol of dadiff-eval) on generated night sequences."""
-    curves = []
-    for frames, boxes in sequences:
-        first = protocol_box(boxes[0])
-        tracker.init(frames[0], first)
-        predicted = [first] + [tracker.update(frame).box for frame in frames[1:]]
-        curves.append(SequenceCurves.from_boxes(boxes, predicted))
-    return summarise(curves)

@@ -25,9 +25,11 @@ from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
-from .bench import NightVideo, night_sequences, night_success, run_bench, search_crops, time_search, write_night_video
+from .bench import NightVideo, run_bench, search_crops, time_search, write_night_video
 from .cli import positive_int
+from .datasets import Dataset
 from .errors import InputError, ModelError
+from .evaluate import generated_night_set, score_tracker
 from .onnx_backend import physical_cores
 from .tracker import Tracker
 
@@ -36,6 +38,7 @@ ROWS = (
     ("post", "decode box + state"), ("encode", "MAVLink 275 encode"), ("tracker", "Tracker.update"),
     ("frame", "frame end to end"), ("template", "template branch (per init)"),
 )
+SUCCESS_SEED = 2026  # the README's generated benchmark: --success 16 --success-frames 120 is that set
 
 
 class BenchError(Exception):
@@ -52,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=positive_int, help="intra-op threads (default: physical cores)")
     p.add_argument("--provider", help="onnxruntime execution provider (default: the best available)")
     p.add_argument("--success", type=int, default=0, metavar="N",
-                   help="also score night success on N generated test sequences per model")
+                   help="also score night success on the first N sequences of the generated night benchmark "
+                        f"(seed {SUCCESS_SEED}, test photos)")
     p.add_argument("--success-frames", type=positive_int, default=100, help="frames per success sequence (100)")
     p.add_argument("--compare-torch", action="store_true",
                    help="time the PyTorch graph on the same crops (needs dadiff[export] and a checkpoint)")
@@ -95,7 +99,8 @@ def _ms(values: Sequence[float]) -> dict[str, float]:
     return {"p50": float(np.median(ms)), "p95": float(np.percentile(ms, 95))}
 
 
-def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, sequences: list, torch: bool) -> dict:
+def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, night: Dataset | None, torch: bool,
+                 results: Path) -> dict:
     """One model's report; `torch`: also time the PyTorch graph on the same crops."""
     tracker = Tracker.load(model, provider=args.provider, threads=args.threads)
     meta = tracker.backend.meta
@@ -108,8 +113,8 @@ def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, seque
     result = {"model": str(model), "name": meta.get("name", model.name), "precision": meta.get("precision", "fp32"),
               "ddim_steps": int(meta.get("ddim_steps", 0)), "gflop_search": float(meta.get("gflop_search", "nan")),
               "providers": list(getattr(tracker.backend, "providers", [])), **run.summary()}
-    if sequences:
-        scores = night_success(tracker, sequences)
+    if night is not None:
+        scores = score_tracker(tracker, night, results, "model").overall
         result["night"] = {"success": scores.success, "precision": scores.precision, "sequences": scores.sequences}
     if torch:
         result["torch"] = _compare_torch(tracker, model, args, video)
@@ -222,9 +227,15 @@ def run(args: argparse.Namespace) -> dict:
         if args.sweep_steps:
             models += _sweep_models(models[0], args, Path(tmp))
         video = write_night_video(Path(tmp), args.seed, args.clip)
-        sequences = night_sequences(args.success, args.success_frames) if args.success > 0 else []
-        results = [_bench_model(m, args, video, sequences, args.compare_torch and i == 0)
+        night = None
+        if args.success > 0:
+            night = generated_night_set(Path(tmp) / "night", args.success, args.success_frames, SUCCESS_SEED)
+        results = [_bench_model(m, args, video, night, args.compare_torch and i == 0, Path(tmp) / f"results{i}")
                    for i, m in enumerate(models)]
+    names = [r["name"] for r in results]
+    for r in results:  # two models with one metadata name (an fp32 model and its int8 copy): show folders
+        if names.count(r["name"]) > 1:
+            r["name"] = Path(r["model"]).name
     report = {"machine": _cpu(), "threads": threads, "video": f"generated night sequence {video.name}",
               "frames": args.frames, "warmup": args.warmup, "results": results}
     if args.peak:

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .datasets import Dataset, DatasetError, read_boxes
+from .datasets import Dataset, DatasetError, load_dataset, read_boxes
 from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
@@ -285,3 +285,18 @@ def result_folders(paths: Iterable[Path], dataset: Dataset) -> list[tuple[str, P
         seen.add(folder.resolve())
         out.append((name, folder))
     return out
+
+
+def generated_night_set(root: Path, sequences: int, frames: int, seed: int, workers: int | None = None) -> Dataset:
+    """The night half of a generated benchmark (test photos) written to `root`, as `dadiff-eval generate`
+    writes it; frames are read from disk while tracking, so scoring many sequences keeps memory flat."""
+    from .scenes import write_benchmark  # the generator pulls in scikit-image's photos: only when asked
+
+    write_benchmark(root, sequences, frames, seed, "test", workers=workers or min(sequences, os.cpu_count() or 1))
+    return load_dataset(root).select(["*_night"])
+
+
+def score_tracker(tracker: object, dataset: Dataset, results: Path, name: str) -> TrackerScores:
+    """One-pass evaluation of a `dadiff.runtime.Tracker` (or anything with its init/update) on `dataset`."""
+    run_tracker(RuntimeTracker(tracker), name, dataset, results, progress=False)
+    return score_folder(dataset, tracker_folder(results, dataset.name, name), name)
