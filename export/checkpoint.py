@@ -7,7 +7,6 @@ Every failure is a CheckpointError whose message is one line naming the file and
 
 from __future__ import annotations
 
-import hashlib
 import pickle
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -15,6 +14,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from dadiff.runtime.ort_cache import file_sha256
 
 from .config import FAMILIES, ModelConfig, default_config
 from .network import DaDiffNet, build_model
@@ -41,14 +42,6 @@ def _numpy_safe_globals() -> list[Any]:
     allowed: list[Any] = [core.multiarray.scalar, np.dtype]
     allowed += [type(np.dtype(t)) for t in ("float64", "float32", "int64", "int32", "bool")]
     return allowed
-
-
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def read_checkpoint_file(path: str | Path) -> Any:

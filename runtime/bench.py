@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from .evaluate import protocol_box
+from .outputs import open_mp4
 from .scenes import make_sequence
 from .tracker import Tracker, TrackResult
 
@@ -39,9 +40,7 @@ def write_night_video(folder: Path, seed: int = 0, frames: int = 300) -> NightVi
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"night-{seed}.mp4"
     height, width = sequence.night[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (width, height))
-    if not writer.isOpened():
-        raise OSError(f"{path}: cannot write video (mp4v)")
+    writer = open_mp4(path, (width, height))
     for frame in sequence.night:
         writer.write(frame)
     writer.release()

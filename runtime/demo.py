@@ -14,7 +14,7 @@ import numpy as np
 
 from .evaluate import protocol_box
 from .metrics import SequenceCurves, summarise
-from .outputs import Record, draw_overlay
+from .outputs import Record, draw_overlay, open_mp4
 from .scenes import make_sequence
 from .tracker import Tracker
 
@@ -47,9 +47,7 @@ def run_demo(model: str | None, out_dir: Path, seed: int = 0, *, frames: int = 1
     out_dir.mkdir(parents=True, exist_ok=True)
     video = out_dir / f"demo-night-{seed}.mp4"
     height, width = sequence.night[0].shape[:2]
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (width, height))
-    if not writer.isOpened():
-        raise OSError(f"{video}: cannot write video (mp4v)")
+    writer = open_mp4(video, (width, height))
     first = protocol_box(sequence.boxes[0])
     boxes = [first]
     seconds, fps = 0.0, None

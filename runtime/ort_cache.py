@@ -42,7 +42,8 @@ def cpu_signature() -> str:
     return f"{platform.machine()} {' '.join(sorted(flags.split(':', 1)[-1].split()))}"
 
 
-def _file_digest(path: Path) -> str:
+def file_sha256(path: Path) -> str:
+    """Hex sha256 of a file, read in 1 MiB blocks (models and checkpoints are hundreds of MB)."""
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -61,7 +62,7 @@ def cached_model_path(model: Path, runtime_version: str) -> Path | None:
         return None
     if not os.access(root, os.W_OK):
         return None
-    key = hashlib.sha256(f"{_file_digest(model)} {runtime_version} {cpu_signature()}".encode()).hexdigest()
+    key = hashlib.sha256(f"{file_sha256(model)} {runtime_version} {cpu_signature()}".encode()).hexdigest()
     path = root / f"{model.stem}-{key[:24]}.onnx"
     if path.is_file():
         path.touch()  # most recently used

@@ -94,6 +94,14 @@ def draw_overlay(image: np.ndarray, record: Record) -> np.ndarray:
     return image
 
 
+def open_mp4(path: Path, size: tuple[int, int], fps: float = 30.0) -> cv2.VideoWriter:
+    """An mp4v writer for frames of `size` (width, height); OSError naming the file when it cannot open."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+    if not writer.isOpened():
+        raise OSError(f"{path}: cannot write video (mp4v)")
+    return writer
+
+
 class VideoSink:
     """Annotated mp4 (fourcc mp4v) at the source frame rate; opened on the first frame to learn its size."""
 
@@ -108,11 +116,10 @@ class VideoSink:
         image = frame.image if frame.image.ndim == 3 else cv2.cvtColor(frame.image, cv2.COLOR_GRAY2BGR)
         if self._writer is None:
             self._size = (image.shape[1], image.shape[0])
-            self._writer = cv2.VideoWriter(
-                str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self._size
-            )
-            if not self._writer.isOpened():
-                raise OutputError(f"{self.path}: cannot write video (mp4v)")
+            try:
+                self._writer = open_mp4(self.path, self._size, self.fps)
+            except OSError as exc:
+                raise OutputError(str(exc)) from None
         if (image.shape[1], image.shape[0]) != self._size:
             image = cv2.resize(image, self._size)
         self._writer.write(draw_overlay(image, record))

@@ -332,9 +332,22 @@ class Rig:
     def __exit__(self, *exc: object) -> None:
         self.service.stop()
         self._thread.join(timeout=10)
+        self._drain(self.ap)  # the service's last words (a final zero velocity) are still in flight
         self.ap.close()
         self.gcs.close()
         assert not self._thread.is_alive(), "service did not stop"
+
+    @staticmethod
+    def _drain(peer: Any, quiet: float = 0.2, limit: float = 2.0) -> None:
+        """Wait until `peer` has received nothing new for `quiet` seconds (at most `limit`)."""
+        end = time.monotonic() + limit
+        count = len(peer.received("SET_POSITION_TARGET_LOCAL_NED"))
+        while time.monotonic() < end:
+            time.sleep(quiet)
+            now = len(peer.received("SET_POSITION_TARGET_LOCAL_NED"))
+            if now == count:
+                return
+            count = now
 
     def connected(self, timeout: float = 5.0) -> bool:
         """The service knows its system id and the ground station hears its heartbeat."""
