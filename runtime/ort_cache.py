@@ -26,7 +26,12 @@ def cache_root() -> Path | None:
     configured = os.environ.get("DADIFF_CACHE_DIR")
     if configured is not None:
         return None if configured.strip().lower() in OFF else Path(configured)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    base = os.environ.get("XDG_CACHE_HOME")
+    if not base:
+        try:
+            base = str(Path.home() / ".cache")
+        except (KeyError, RuntimeError):  # a service user without a home: no cache
+            return None
     return Path(base) / "dadiff" / "ort"
 
 

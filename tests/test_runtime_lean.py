@@ -192,6 +192,17 @@ def test_cache_off_or_unwritable_writes_nothing(model_dir: Path, tmp_path: Path,
         locked.chmod(0o700)
 
 
+def test_no_home_means_no_cache(monkeypatch) -> None:
+    monkeypatch.delenv("DADIFF_CACHE_DIR", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+
+    def no_home() -> Path:
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr(Path, "home", staticmethod(no_home))
+    assert cache_root() is None
+
+
 def test_cache_keeps_only_the_most_recent_graphs(tmp_path: Path) -> None:
     for i in range(KEEP + 3):
         entry = tmp_path / f"m{i}.onnx"
