@@ -11,7 +11,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from dadiff.models import list_models, resolve
+from dadiff.models import ModelNotFoundError, resolve
 from dadiff.runtime.sources import SourceError, open_source, parse_box
 
 from .checkpoint import CheckpointError, load_checkpoint
@@ -112,15 +112,11 @@ def _fail(message: str, code: int = 2) -> int:
 
 
 def model_folder(spec: str) -> Path | None:
-    """The fp32 model folder `spec` names (a folder, an .onnx file in one, a shipped name), or None."""
-    path = Path(spec).expanduser()
-    if path.is_dir():
-        return path
-    if path.is_file() and path.suffix.lower() == ".onnx":
-        return path.parent
-    if not path.exists() and spec in list_models():
+    """The model folder `spec` names (a folder, an .onnx file in one, a shipped name), or None (a checkpoint)."""
+    try:
         return resolve(spec)
-    return None
+    except ModelNotFoundError:
+        return None
 
 
 def quantize_settings(args: argparse.Namespace) -> QuantizeSettings:

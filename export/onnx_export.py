@@ -198,12 +198,11 @@ def check_parity(net: DaDiffNet, folder: Path) -> dict[str, tuple[float, float]]
     return parity
 
 
-def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset: int = DEFAULT_OPSET,
-                 tolerance: float = PARITY_TOLERANCE) -> ExportReport:
-    """Write out_dir/template.onnx and out_dir/search.onnx; nothing is left behind on failure."""
-    if opset not in SUPPORTED_OPSETS:
-        raise ExportError(f"unsupported opset {opset}; use {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1}")
-    out = Path(out_dir)
+def staging_folder(out: Path, prefix: str) -> Path:
+    """A temporary folder next to the model folder `out`, to be moved into place only when all went well.
+
+    `out` may be missing, empty or an earlier model folder (overwritten); anything else is refused.
+    """
     if out.exists() and not out.is_dir():
         raise ExportError(f"{out}: exists and is not a folder")
     if out.exists() and any(out.iterdir()) and not (out / SEARCH_FILE).exists():
@@ -211,9 +210,18 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
     parent = out.parent if out.parent != Path("") else Path(".")
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".dadiff-export-", dir=parent))
+        return Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
     except OSError as e:
         raise ExportError(f"{parent}: cannot write the output there ({e.strerror or e})") from None
+
+
+def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset: int = DEFAULT_OPSET,
+                 tolerance: float = PARITY_TOLERANCE) -> ExportReport:
+    """Write out_dir/template.onnx and out_dir/search.onnx; nothing is left behind on failure."""
+    if opset not in SUPPORTED_OPSETS:
+        raise ExportError(f"unsupported opset {opset}; use {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1}")
+    out = Path(out_dir)
+    staging = staging_folder(out, ".dadiff-export-")
     start = time.perf_counter()
     net = loaded.model.eval()
     try:

@@ -19,7 +19,6 @@ import fnmatch
 import json
 import logging
 import shutil
-import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -32,6 +31,7 @@ import onnxruntime as ort
 from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType, quantize_static
 from onnxruntime.quantization.shape_inference import quant_pre_process
 
+from dadiff.runtime.backend import RecordingBackend
 from dadiff.runtime.datasets import Dataset, DatasetError
 from dadiff.runtime.decode import foreground_score, hann_window
 from dadiff.runtime.errors import InputError, ModelError
@@ -41,7 +41,7 @@ from dadiff.runtime.scenes import SceneError, make_sequence
 from dadiff.runtime.sources import SourceError, open_source
 from dadiff.runtime.tracker import Tracker
 
-from .onnx_export import SEARCH_FILE, TEMPLATE_FILE, random_ops
+from .onnx_export import SEARCH_FILE, TEMPLATE_FILE, ExportError, random_ops, staging_folder
 
 PRECISIONS = ("int8",)
 DEFAULT_CALIBRATION_FRAMES = 200
@@ -128,34 +128,6 @@ DEFAULT_METHOD = "minmax"  # entropy and percentile measured no better, at 5-7x 
 # -------------------------------------------------------------------------------------------- recording
 
 
-class RecordingBackend:
-    """Wraps a backend and keeps what `search()` receives (every `every`-th call, up to `limit` calls)."""
-
-    def __init__(self, inner: OnnxBackend, inputs: Sequence[str], limit: int, every: int = 1) -> None:
-        self.inner, self.limit, self.every = inner, limit, max(1, every)
-        self.name = getattr(inner, "name", "recorded")
-        self.image_name, self.kernel_names = inputs[0], list(inputs[1:])
-        self.recorded: list[Feed] = []
-        self._calls = 0
-
-    @property
-    def meta(self) -> Mapping[str, str]:
-        return self.inner.meta
-
-    @property
-    def full(self) -> bool:
-        return len(self.recorded) >= self.limit
-
-    def template(self, z: np.ndarray) -> dict[str, np.ndarray]:
-        return self.inner.template(z)
-
-    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        if self._calls % self.every == 0 and not self.full:
-            self.recorded.append({self.image_name: x.copy(), **{k: feeds[k] for k in self.kernel_names}})
-        self._calls += 1
-        return self.inner.search(x, feeds)
-
-
 def generated_sequences(crops: int, seed: int = CALIBRATION_SEED) -> Iterator[tuple[Iterable[np.ndarray], Box]]:
     """Night sequences of the training photos (never the test split: that is the benchmark), GT init box;
     short ones (`CALIBRATION_SEQUENCE_FRAMES` crops each) for variety, none longer than `crops` needs."""
@@ -181,16 +153,10 @@ def source_sequence(spec: str, init: Box | None) -> Iterator[tuple[Iterable[np.n
         source.close()
 
 
-def search_inputs(folder: Path) -> list[str]:
-    """Input names of the folder's search graph: the image first, then the template kernels."""
-    model = onnx.load(str(folder / SEARCH_FILE), load_external_data=False)
-    return [i.name for i in model.graph.input]
-
-
 def record_search_inputs(folder: Path, sequences: Iterable[tuple[Iterable[np.ndarray], Box]],
                          limit: int) -> list[Feed]:
     """Track with the fp32 model of `folder` and keep the first `limit` search-graph feeds."""
-    recorder = RecordingBackend(OnnxBackend(folder), search_inputs(folder), limit)
+    recorder = RecordingBackend(OnnxBackend(folder), limit)
     tracker = Tracker(recorder)
     for frames, box in sequences:
         it = iter(frames)
@@ -352,7 +318,7 @@ def night_success(folder: Path, bench: NightSet, name: str, record: int = 0) -> 
     recorder = None
     if record:
         updates = sum(len(s) - 1 for s in bench.dataset.sequences)
-        recorder = RecordingBackend(backend, search_inputs(folder), record, every=-(-updates // record))
+        recorder = RecordingBackend(backend, record, every=-(-updates // record))
     scores = score_tracker(Tracker(recorder or backend), bench.dataset, bench.root.parent / "results", name)
     return scores.overall.success, (recorder.recorded if recorder else [])
 
@@ -422,19 +388,13 @@ def check_source(folder: Path) -> dict[str, str]:
 
 
 def _staging(out: Path, source: Path) -> Path:
-    """A temporary folder next to `out`, after the same checks as export_model."""
-    if out.exists() and not out.is_dir():
-        raise QuantizeError(f"{out}: exists and is not a folder")
-    if out.exists() and out.resolve() == source.resolve():
+    """A temporary folder next to `out`, after export_model's checks; `out` must not be the source."""
+    if out.is_dir() and out.resolve() == source.resolve():
         raise QuantizeError(f"{out}: is the fp32 source folder; write the int8 model to another -o")
-    if out.exists() and any(out.iterdir()) and not (out / SEARCH_FILE).exists():
-        raise QuantizeError(f"{out}: folder is not empty and holds no dadiff model; choose another -o")
-    parent = out.parent if out.parent != Path("") else Path(".")
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=".dadiff-quantize-", dir=parent))
-    except OSError as exc:
-        raise QuantizeError(f"{parent}: cannot write the output there ({exc.strerror or exc})") from None
+        return staging_folder(out, ".dadiff-quantize-")
+    except ExportError as exc:
+        raise QuantizeError(str(exc)) from None
 
 
 def quantize_model(source: str | Path, out: str | Path, settings: QuantizeSettings | None = None,

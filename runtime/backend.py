@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .onnx_backend import OnnxBackend
 
 
 @runtime_checkable
@@ -23,3 +26,37 @@ class Backend(Protocol):
     def template(self, z: np.ndarray) -> dict[str, np.ndarray]: ...
 
     def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class RecordingBackend:
+    """Wraps an OnnxBackend and keeps copies of what the tracker feeds it: every template crop, and every
+    `every`-th search feed (crop and kernels, by the search graph's input names) up to `limit` of them.
+
+    Calibration (int8) and the torch comparison of dadiff-bench both need the real inputs of the graphs.
+    """
+
+    def __init__(self, inner: OnnxBackend, limit: int, every: int = 1) -> None:
+        self.inner, self.limit, self.every = inner, limit, max(1, every)
+        self.name = getattr(inner, "name", "recorded")
+        self.image_name, *self.kernel_names = inner.search_inputs
+        self.templates: list[np.ndarray] = []
+        self.recorded: list[dict[str, np.ndarray]] = []
+        self._calls = 0
+
+    @property
+    def meta(self) -> Mapping[str, str]:
+        return self.inner.meta
+
+    @property
+    def full(self) -> bool:
+        return len(self.recorded) >= self.limit
+
+    def template(self, z: np.ndarray) -> dict[str, np.ndarray]:
+        self.templates.append(z.copy())
+        return self.inner.template(z)
+
+    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        if self._calls % self.every == 0 and not self.full:
+            self.recorded.append({self.image_name: x.copy(), **{k: feeds[k] for k in self.kernel_names}})
+        self._calls += 1
+        return self.inner.search(x, feeds)

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import resource
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from .backend import RecordingBackend
 from .evaluate import protocol_box
 from .outputs import open_mp4
 from .scenes import make_sequence
@@ -79,6 +80,12 @@ class StatusEncoder:
         return self._status(snapshot).pack(self._mav)
 
 
+def latency_ms(seconds: Sequence[float] | np.ndarray) -> dict[str, float]:
+    """Median and 95th percentile of durations in seconds, in milliseconds."""
+    ms = np.asarray(seconds) * 1000
+    return {"p50": float(np.median(ms)), "p95": float(np.percentile(ms, 95))}
+
+
 @dataclass
 class BenchRun:
     """Raw per-frame timings (seconds) after warm-up, init timings, and memory samples.
@@ -98,8 +105,7 @@ class BenchRun:
         """Medians and p95 in ms per stage, end-to-end FPS, the share outside the ONNX call, memory."""
         out: dict = {"frames": self.frames, "seconds": self.seconds, "fps": self.frames / self.seconds}
         for name, values in {**self.stages, "template": self.template}.items():
-            ms = np.asarray(values) * 1000
-            out[name] = {"p50": float(np.median(ms)), "p95": float(np.percentile(ms, 95))} if len(ms) else None
+            out[name] = latency_ms(values) if len(values) else None
         tracker, frame, search = (np.asarray(self.stages[k]) for k in ("tracker", "frame", "search"))
         out["outside_onnx_tracker"] = float(np.median((tracker - search) / tracker))
         out["outside_onnx_frame"] = float(np.median((frame - search) / frame))
@@ -176,32 +182,19 @@ def run_bench(
 
 def search_crops(tracker: Tracker, video: NightVideo, count: int) -> tuple[np.ndarray, np.ndarray]:
     """(z, xs): the template crop and the first `count` search crops the tracker makes on the video."""
-    backend, seen = tracker.backend, {}
-    template, search = backend.template, backend.search
-
-    def record_template(z: np.ndarray) -> dict[str, np.ndarray]:
-        seen["z"] = z.copy()
-        return template(z)
-
-    xs = []
-
-    def record_search(x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        xs.append(x.copy())
-        return search(x, feeds)
-
-    backend.template, backend.search = record_template, record_search
+    recorder = RecordingBackend(tracker.backend, count)
+    recording = Tracker(recorder, overrides=asdict(tracker.params))  # same settings, recorded backend
+    capture = _open(video)
     try:
-        capture = _open(video)
-        _init(tracker, capture, video)
-        while len(xs) < count:
+        _init(recording, capture, video)
+        while not recorder.full:
             ok, frame = capture.read()
             if not ok:
                 break
-            tracker.update(frame)
-        capture.release()
+            recording.update(frame)
     finally:
-        del backend.template, backend.search
-    return seen["z"], np.concatenate(xs)
+        capture.release()
+    return recorder.templates[0], np.concatenate([feed[recorder.image_name] for feed in recorder.recorded])
 
 
 def time_search(tracker: Tracker, z: np.ndarray, xs: np.ndarray, repeats: int = 3) -> list[float]:

@@ -25,12 +25,12 @@ from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
-from .bench import NightVideo, run_bench, search_crops, time_search, write_night_video
+from .bench import NightVideo, latency_ms, run_bench, search_crops, time_search, write_night_video
 from .cli import positive_int
 from .datasets import Dataset
 from .errors import InputError, ModelError
 from .evaluate import generated_night_set, score_tracker
-from .onnx_backend import physical_cores
+from .onnx_backend import physical_cores, thread_count
 from .tracker import Tracker
 
 ROWS = (
@@ -94,11 +94,6 @@ def _checkpoint(args: argparse.Namespace, folder: Path) -> Path:
     return path
 
 
-def _ms(values: Sequence[float]) -> dict[str, float]:
-    ms = np.asarray(values) * 1000
-    return {"p50": float(np.median(ms)), "p95": float(np.percentile(ms, 95))}
-
-
 def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, night: Dataset | None, torch: bool,
                  results: Path) -> dict:
     """One model's report; `torch`: also time the PyTorch graph on the same crops."""
@@ -128,11 +123,11 @@ def _compare_torch(tracker: Tracker, model: Path, args: argparse.Namespace, vide
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         crops = Path(tmp) / "crops.npz"
         np.savez(crops, z=z, xs=xs)
-        threads = args.threads or physical_cores()
+        threads = thread_count(args.threads)
         torch_out = _subprocess_json(
             ["-m", "dadiff.export.bench_torch", "search", str(checkpoint), str(crops), "--threads", str(threads),
              "--steps", tracker.backend.meta["ddim_steps"]], "the PyTorch run")
-    ort_ms, torch_ms = _ms(ort_times), _ms(torch_out["times"])
+    ort_ms, torch_ms = latency_ms(ort_times), latency_ms(torch_out["times"])
     return {"checkpoint": str(checkpoint), "crops": len(xs), "torch_version": torch_out["torch"],
             "ort": ort_ms, "torch_eager": torch_ms, "ratio": torch_ms["p50"] / ort_ms["p50"]}
 
@@ -222,7 +217,7 @@ def run(args: argparse.Namespace) -> dict:
         models = [Path(resolve(m)) for m in (args.models or [None])]
     except ModelNotFoundError as exc:
         raise ModelError(str(exc)) from None
-    threads = args.threads or physical_cores()
+    threads = thread_count(args.threads)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         if args.sweep_steps:
             models += _sweep_models(models[0], args, Path(tmp))

@@ -54,15 +54,21 @@ def physical_cores() -> int:
     return max(1, len(cores))
 
 
+def thread_count(threads: int | None = None) -> int:
+    """`threads` checked, or the physical core count when None."""
+    if threads is None:
+        return physical_cores()
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise InputError(f"threads must be a positive integer, got {threads!r}")
+    return threads
+
+
 def session_options(threads: int | None = None, optimise: bool = True) -> ort.SessionOptions:
     """Options shared by both sessions; `threads` defaults to the physical core count.
 
     `optimise=False` is for graphs that onnxruntime already optimised (the on-disk cache).
     """
-    if threads is None:
-        threads = physical_cores()
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise InputError(f"threads must be a positive integer, got {threads!r}")
+    threads = thread_count(threads)
     options = ort.SessionOptions()
     options.graph_optimization_level = (
         ort.GraphOptimizationLevel.ORT_ENABLE_ALL if optimise else ort.GraphOptimizationLevel.ORT_DISABLE_ALL
@@ -83,7 +89,7 @@ def _first_line(exc: BaseException) -> str:
     return line if len(line) <= 200 else line[:197] + "..."
 
 
-def _open(path: Path, threads: int | None, providers: list[str], cache: bool) -> ort.InferenceSession:
+def _open(path: Path, threads: int, providers: list[str], cache: bool) -> ort.InferenceSession:
     """A session for `path`, from the per-CPU cache of optimised graphs when there is one (CPU only)."""
     if not path.is_file():
         raise ModelError(f"{path}: file not found (a model folder holds template.onnx and search.onnx)")
@@ -143,7 +149,7 @@ class OnnxBackend:
         self.template_path = folder / "template.onnx"
         self.search_path = folder / "search.onnx"
         providers = choose_providers(provider)
-        session_options(threads)  # checks `threads` before any session is built
+        threads = thread_count(threads)  # checked, and the cores counted, once for both sessions
         self._template = _open(self.template_path, threads, providers, cache)
         self._search = _open(self.search_path, threads, providers, cache)
         if provider is not None and providers[0] not in self._search.get_providers():
@@ -156,6 +162,11 @@ class OnnxBackend:
     @property
     def meta(self) -> Mapping[str, str]:
         return self._meta
+
+    @property
+    def search_inputs(self) -> list[str]:
+        """Input names of the search graph: the image first, then the template kernels."""
+        return [self._x_name, *self._feed_names]
 
     @property
     def providers(self) -> list[str]:
