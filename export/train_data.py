@@ -20,7 +20,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from dadiff.runtime.crop import crop_side, mean_colour, subwindow
-from dadiff.runtime.datasets import DatasetError, read_boxes
+from dadiff.runtime.evaluation.datasets import DatasetError, read_boxes
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
 
@@ -121,7 +121,7 @@ class SceneSource:
     """Pairs of frames from generated scenes over the training split of photographs."""
 
     def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4) -> None:
-        from dadiff.runtime.scenes import load_photos
+        from dadiff.runtime.evaluation.scenes import load_photos
 
         self.photos = load_photos(split)
         self.max_gap = max_gap
@@ -129,7 +129,7 @@ class SceneSource:
         self._scene, self._uses = None, 0
 
     def sample(self, rng: np.random.Generator):
-        from dadiff.runtime.scenes import Scene
+        from dadiff.runtime.evaluation.scenes import Scene
 
         if self._scene is None or self._uses >= self.pairs_per_scene:
             self._scene, self._uses = Scene.random(rng, self.photos, frames=self.max_gap + 1), 0
@@ -240,7 +240,7 @@ class PairStream(IterableDataset):
         self.night_source = NightFolderSource(night) if night and with_night else None
 
     def _night(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        from dadiff.runtime.scenes import render_night
+        from dadiff.runtime.evaluation.scenes import render_night
 
         return render_night(frame, rng)
 

@@ -27,9 +27,9 @@ from dadiff.models import ModelNotFoundError, resolve
 
 from .bench import NightVideo, latency_ms, run_bench, search_crops, time_search, write_night_video
 from .cli import positive_int
-from .datasets import Dataset
 from .errors import InputError, ModelError
-from .evaluate import generated_night_set, score_tracker
+from .evaluation.datasets import Dataset
+from .evaluation.evaluate import generated_night_set, score_tracker
 from .onnx_backend import physical_cores, thread_count
 from .tracker import Tracker
 

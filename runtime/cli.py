@@ -124,7 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from .demo import run_demo  # the generator needs scikit-image's photos: loaded only here
+    from .evaluation.demo import run_demo  # the generator needs scikit-image's photos: loaded only here
 
     run_demo(args.model, args.demo_out, seed=args.seed)
     return 0

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from dadiff.runtime.eval_cli import main
-from dadiff.runtime.evaluate import EvalError, OpenCVTracker, opencv_available, read_result
+from dadiff.runtime.evaluation.cli import main
+from dadiff.runtime.evaluation.evaluate import EvalError, OpenCVTracker, opencv_available, read_result
 
 pytest.importorskip("skimage")  # the scene photos
 

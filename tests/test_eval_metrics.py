@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from dadiff.runtime.metrics import (
+from dadiff.runtime.evaluation.metrics import (
     NORM_THRESHOLDS,
     PRECISION_THRESHOLDS,
     SUCCESS_THRESHOLDS,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from dadiff.runtime.metrics import SequenceCurves, summarise
-from dadiff.runtime.plots import PALETTE, Curve, draw_plot, write_plots
+from dadiff.runtime.evaluation.metrics import SequenceCurves, summarise
+from dadiff.runtime.evaluation.plots import PALETTE, Curve, draw_plot, write_plots
 
 
 def _scores(shift: float):

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime import scenes
-from dadiff.runtime.datasets import load_dataset
-from dadiff.runtime.scenes import (
+from dadiff.runtime.evaluation import scenes
+from dadiff.runtime.evaluation.datasets import load_dataset
+from dadiff.runtime.evaluation.scenes import (
     PHOTO_SPLITS,
     Scene,
     SceneError,
@@ -39,7 +39,7 @@ def test_photo_splits_are_fixed_disjoint_and_bgr():
 
 
 def test_importing_the_generator_does_not_import_skimage():
-    code = "import sys, dadiff.runtime.scenes; sys.exit('skimage' in sys.modules)"
+    code = "import sys, dadiff.runtime.evaluation.scenes; sys.exit('skimage' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
 
 

@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("torch")
 
 from dadiff.export.train_data import CropConfig, PairStream, SceneSource, SequenceSource, ban_targets  # noqa: E402
-from dadiff.runtime.scenes import write_benchmark  # noqa: E402
+from dadiff.runtime.evaluation.scenes import write_benchmark  # noqa: E402
 
 
 def test_ban_targets_centre_positive_far_negative():

@@ -15,9 +15,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from .cli import positive_int
+from ..cli import positive_int
+from ..errors import InputError, ModelError
 from .datasets import Dataset, DatasetError, load_dataset
-from .errors import InputError, ModelError
 from .evaluate import EvalError, OpenCVTracker, RuntimeTracker, TrackerScores, result_folders, run_tracker, score_folder
 from .plots import write_plots
 from .scenes import PHOTO_SPLITS, SceneError, write_benchmark
@@ -134,7 +134,7 @@ def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
         return OpenCVTracker(args.tracker), args.name or args.tracker.upper()
     from dadiff.models import ModelNotFoundError, resolve
 
-    from .tracker import Tracker
+    from ..tracker import Tracker
 
     try:
         name = args.name or resolve(args.model).name
