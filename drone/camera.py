@@ -3,18 +3,34 @@ CAMERA_INFORMATION; the CAMERA_TRACKING_IMAGE_STATUS (275) message and its strea
 
 No I/O here: `handle` returns the messages to send, so every rule is testable without a socket.
 
-Commands (COMMAND_LONG or COMMAND_INT, from an allowed system id, to our system and component or
-broadcast): MAV_CMD_CAMERA_TRACK_RECTANGLE, _TRACK_POINT, _STOP_TRACKING, MAV_CMD_REQUEST_MESSAGE
-(CAMERA_INFORMATION, CAMERA_TRACKING_IMAGE_STATUS), MAV_CMD_REQUEST_CAMERA_INFORMATION,
-MAV_CMD_SET_MESSAGE_INTERVAL / MAV_CMD_GET_MESSAGE_INTERVAL (275 only). Each gets a COMMAND_ACK:
-ACCEPTED; DENIED for out-of-range, non-finite or degenerate values or another camera's id;
-TEMPORARILY_REJECTED for a track command before the first frame; UNSUPPORTED for anything else addressed
-to us. Broadcast commands we do not handle are left to the components they are for (no ACK).
+Who may command (COMMAND_LONG or COMMAND_INT to our system and component, or broadcast): the vehicle
+itself (our system id), the systems in `allowed_sysids` (default 255, QGroundControl, and 245, MAVSDK;
+None: any), and with signing on every correctly signed sender (the link drops everything else before it
+gets here). A refused sender's command that is ours gets COMMAND_ACK DENIED and a throttled log line.
+
+Commands: MAV_CMD_CAMERA_TRACK_RECTANGLE, _TRACK_POINT, _STOP_TRACKING; MAV_CMD_REQUEST_MESSAGE for
+CAMERA_INFORMATION, CAMERA_SETTINGS, STORAGE_INFORMATION, CAMERA_CAPTURE_STATUS, CAMERA_TRACKING_IMAGE_STATUS
+and (with a stream URL) VIDEO_STREAM_INFORMATION / VIDEO_STREAM_STATUS; their legacy request commands
+(MAV_CMD_REQUEST_CAMERA_INFORMATION, _CAMERA_SETTINGS, _STORAGE_INFORMATION, _CAMERA_CAPTURE_STATUS,
+_VIDEO_STREAM_INFORMATION, _VIDEO_STREAM_STATUS) which QGroundControl and MAVSDK fall back to;
+MAV_CMD_VIDEO_START/STOP_STREAMING (ACCEPTED: the stream is not ours to switch); MAV_CMD_SET_MESSAGE_INTERVAL /
+MAV_CMD_GET_MESSAGE_INTERVAL (275 only: QGroundControl asks for 500000 us when it starts tracking and -1
+when it stops). Each gets a COMMAND_ACK: ACCEPTED; DENIED for out-of-range, non-finite or degenerate values
+or another camera's id; TEMPORARILY_REJECTED for a track or video-stream request before the first frame;
+UNSUPPORTED for anything else addressed to us. Broadcast commands we do not handle are left to the
+components they are for (no ACK).
+
+The answers have minimal valid content: no storage (one STORAGE_STATUS_NOT_SUPPORTED entry), capture idle,
+video mode with zoom and focus unknown; the video stream at the resolution of the frames the tracker
+normalises against, so that a ground station places a drawn rectangle on the same image.
 
 Status mapping (275): tracking → ACTIVE; uncertain → ACTIVE|COASTING (COASTING, value 8, is a work-in-
 progress flag in common.xml: a ground station that does not know it sees ACTIVE); lost, stopped → IDLE;
-tracker failure, or no result for STALLED_AFTER seconds while tracking → ERROR. Mode RECTANGLE with the
-box normalised to 0..1 while active, NONE and NaN otherwise; the point fields are always NaN.
+tracker failure, or no result for STALLED_AFTER seconds while tracking → ERROR. While ACTIVE: mode
+RECTANGLE with the box normalised to 0..1, and the point fields its centre and half-width. QGroundControl
+reads the rectangle when the mode is RECTANGLE and the point fields otherwise, for any status but IDLE, so
+nothing it reads is ever NaN: ERROR carries mode NONE with the point fields 0. IDLE: mode NONE, all NaN
+("unknown", as common.xml says; ground stations read nothing then).
 """
 
 from __future__ import annotations
@@ -28,6 +44,8 @@ from typing import Any
 from .logs import Throttle
 from .mav import mavlink
 from .tracking import Snapshot, Start, Stop, TrackFeed
+
+DEFAULT_ALLOWED = frozenset({255, 245})  # QGroundControl, MAVSDK
 
 log = logging.getLogger(__name__)
 
@@ -56,9 +74,24 @@ class CameraSettings:
     component: int = mavlink.MAV_COMP_ID_CAMERA
     status_hz: float = 10.0  # default 275 rate while tracking (0: off until a ground station asks)
     idle_hz: float = 1.0  # 275 rate cap while not tracking
-    allowed_sysids: frozenset[int] = frozenset({255})  # besides the vehicle's own
+    allowed_sysids: frozenset[int] | None = DEFAULT_ALLOWED  # besides the vehicle's own; None: any
+    trust_signed: bool = False  # signing on: every correctly signed sender may command
+    stream_url: str | None = None  # advertise this video stream (VIDEO_STREAM_INFORMATION)
     vendor: str = "dadiff"
     model: str = "dadiff-tracker"
+
+
+def stream_type(url: str) -> int:
+    """VIDEO_STREAM_TYPE for a URL: rtsp:// → RTSP, udp:// or a bare port → RTP/UDP, tcp:// or http(s):// →
+    MPEG on TCP, mpegts:// → MPEG-TS."""
+    scheme = url.split("://", 1)[0].lower() if "://" in url else ""
+    if scheme in ("rtsp", "rtsps"):
+        return mavlink.VIDEO_STREAM_TYPE_RTSP
+    if scheme in ("tcp", "http", "https"):
+        return mavlink.VIDEO_STREAM_TYPE_TCP_MPEG
+    if scheme in ("mpegts", "ts"):
+        return mavlink.VIDEO_STREAM_TYPE_MPEG_TS
+    return mavlink.VIDEO_STREAM_TYPE_RTPUDP
 
 
 def _text(value: str, size: int) -> list[int]:
@@ -85,10 +118,15 @@ def tracking_status(snapshot: Snapshot, stalled: bool = False) -> Any:
         flags = mavlink.CAMERA_TRACKING_STATUS_FLAGS_ERROR
     if flags & mavlink.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE and snapshot.box is not None and snapshot.frame_size[0] > 0:
         rect = normalised_rect(snapshot)
+        point = ((rect[0] + rect[2]) / 2, (rect[1] + rect[3]) / 2, (rect[2] - rect[0]) / 2)
         mode, data = mavlink.CAMERA_TRACKING_MODE_RECTANGLE, mavlink.CAMERA_TRACKING_TARGET_DATA_IN_STATUS
-    else:
-        rect, mode, data = (NAN, NAN, NAN, NAN), mavlink.CAMERA_TRACKING_MODE_NONE, 0
-    return mavlink.MAVLink_camera_tracking_image_status_message(flags, mode, data, NAN, NAN, NAN, *rect, 0)
+    elif flags == mavlink.CAMERA_TRACKING_STATUS_FLAGS_IDLE:
+        point, rect, mode, data = (NAN, NAN, NAN), (NAN, NAN, NAN, NAN), mavlink.CAMERA_TRACKING_MODE_NONE, 0
+    else:  # ERROR (or ACTIVE without a box): read by ground stations, so finite
+        if flags & mavlink.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE:
+            flags = mavlink.CAMERA_TRACKING_STATUS_FLAGS_ERROR
+        point, rect, mode, data = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), mavlink.CAMERA_TRACKING_MODE_NONE, 0
+    return mavlink.MAVLink_camera_tracking_image_status_message(flags, mode, data, *point, *rect, 0)
 
 
 class StatusStream:
@@ -155,30 +193,88 @@ class CameraComponent:
         self.settings, self.feed, self.clock_ms = settings, feed, clock_ms
         self.stream = StatusStream(settings.status_hz, settings.idle_hz)
         self._throttle = Throttle(log)
-        self.ignored = 0
+        self.ignored = 0  # commands refused for their sender
+        m = mavlink
         self._handlers: dict[int, Callable[[Sequence[float], bool, float], Reply]] = {
-            mavlink.MAV_CMD_CAMERA_TRACK_RECTANGLE: self._track_rectangle,
-            mavlink.MAV_CMD_CAMERA_TRACK_POINT: self._track_point,
-            mavlink.MAV_CMD_CAMERA_STOP_TRACKING: self._stop_tracking,
-            mavlink.MAV_CMD_REQUEST_MESSAGE: self._request_message,
-            mavlink.MAV_CMD_REQUEST_CAMERA_INFORMATION: self._request_information,
-            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_interval,
-            mavlink.MAV_CMD_GET_MESSAGE_INTERVAL: self._get_interval,
+            m.MAV_CMD_CAMERA_TRACK_RECTANGLE: self._track_rectangle,
+            m.MAV_CMD_CAMERA_TRACK_POINT: self._track_point,
+            m.MAV_CMD_CAMERA_STOP_TRACKING: self._stop_tracking,
+            m.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+            m.MAV_CMD_REQUEST_CAMERA_INFORMATION: self._request_information,
+            m.MAV_CMD_REQUEST_CAMERA_SETTINGS: self._legacy(self.settings_message),
+            m.MAV_CMD_REQUEST_STORAGE_INFORMATION: self._request_storage,
+            m.MAV_CMD_REQUEST_CAMERA_CAPTURE_STATUS: self._legacy(self.capture_status),
+            m.MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION: self._request_stream(self.stream_information),
+            m.MAV_CMD_REQUEST_VIDEO_STREAM_STATUS: self._request_stream(self.stream_status),
+            m.MAV_CMD_VIDEO_START_STREAMING: self._streaming,
+            m.MAV_CMD_VIDEO_STOP_STREAMING: self._streaming,
+            m.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_interval,
+            m.MAV_CMD_GET_MESSAGE_INTERVAL: self._get_interval,
+        }
+        self._messages: dict[int, Callable[[], Any]] = {
+            m.MAVLINK_MSG_ID_CAMERA_INFORMATION: self.information,
+            m.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: self.status,
+            m.MAVLINK_MSG_ID_CAMERA_SETTINGS: self.settings_message,
+            m.MAVLINK_MSG_ID_STORAGE_INFORMATION: self.storage_information,
+            m.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS: self.capture_status,
         }
 
     # -- messages -----------------------------------------------------------------------------------
+    @property
+    def has_stream(self) -> bool:
+        return bool(self.settings.stream_url)
+
     def information(self) -> Any:
         width, height = self.feed.frame_size or (0, 0)
         s = self.settings
+        flags = CAPABILITIES | (mavlink.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM if self.has_stream else 0)
         return mavlink.MAVLink_camera_information_message(
             self.clock_ms(), _text(s.vendor, 32), _text(s.model, 32), FIRMWARE_VERSION,
-            NAN, NAN, NAN, min(width, 65535), min(height, 65535), 0, CAPABILITIES, 0, b"", 0, 0,
+            NAN, NAN, NAN, min(width, 65535), min(height, 65535), 0, flags, 0, b"", 0, 0,
         )  # fmt: skip
 
     def status(self) -> Any:
         return tracking_status(self.feed.latest())
 
+    def settings_message(self) -> Any:
+        return mavlink.MAVLink_camera_settings_message(self.clock_ms(), mavlink.CAMERA_MODE_VIDEO, NAN, NAN, 0)
+
+    def storage_information(self) -> Any:
+        return mavlink.MAVLink_storage_information_message(
+            self.clock_ms(), 1, 1, mavlink.STORAGE_STATUS_NOT_SUPPORTED, 0.0, 0.0, 0.0, 0.0, 0.0,
+            mavlink.STORAGE_TYPE_UNKNOWN, b"", 0,
+        )  # fmt: skip
+
+    def capture_status(self) -> Any:
+        return mavlink.MAVLink_camera_capture_status_message(self.clock_ms(), 0, 0, 0.0, 0, 0.0, 0, 0)
+
+    def _stream_size(self) -> tuple[int, int]:
+        width, height = self.feed.frame_size or (0, 0)
+        return min(width, 65535), min(height, 65535)
+
+    def stream_information(self) -> Any:
+        url = self.settings.stream_url or ""
+        width, height = self._stream_size()
+        return mavlink.MAVLink_video_stream_information_message(
+            1, 1, stream_type(url), mavlink.VIDEO_STREAM_STATUS_FLAGS_RUNNING, float(self.feed.frame_rate),
+            width, height, 0, 0, 0, self.settings.model.encode()[:32], url.encode()[:160],
+            mavlink.VIDEO_STREAM_ENCODING_H264, 0,
+        )  # fmt: skip
+
+    def stream_status(self) -> Any:
+        width, height = self._stream_size()
+        return mavlink.MAVLink_video_stream_status_message(
+            1, mavlink.VIDEO_STREAM_STATUS_FLAGS_RUNNING, float(self.feed.frame_rate), width, height, 0, 0, 0, 0
+        )
+
     # -- commands -----------------------------------------------------------------------------------
+    def may_command(self, msg: Any, sysid: int) -> bool:
+        source = msg.get_srcSystem()
+        allowed = self.settings.allowed_sysids
+        if source == sysid or allowed is None or source in allowed:
+            return True
+        return self.settings.trust_signed and bool(getattr(msg, "_signed", False))
+
     def handle(self, msg: Any, sysid: int | None, now: float) -> list[Any]:
         """Replies (COMMAND_ACK first) for a COMMAND_LONG / COMMAND_INT; [] for anything not ours."""
         kind = msg.get_type()
@@ -187,18 +283,24 @@ class CameraComponent:
         component = self.settings.component
         if msg.target_system not in (0, sysid) or msg.target_component not in (0, component):
             return []
-        source = msg.get_srcSystem()
-        if source != sysid and source not in self.settings.allowed_sysids:
-            self.ignored += 1
-            self._throttle.log(logging.WARNING, f"src{source}", "ignored a command from system id %d", source)
-            return []
         m = msg  # COMMAND_INT: x and y (ints) stand in for param5 and param6
+        broadcast = m.target_component == 0
+        handler = self._handlers.get(m.command)
+        if not self.may_command(msg, sysid):
+            if broadcast and handler is None:
+                return []  # not ours anyway
+            source = msg.get_srcSystem()
+            self.ignored += 1
+            self._throttle.log(
+                logging.WARNING, f"src{source}",
+                "denied command %d from system %d (not the vehicle, not in --allow-sysid, not signed)",
+                m.command, source,
+            )  # fmt: skip
+            return [self._ack(m, DENIED)]
         if kind == "COMMAND_LONG":
             params = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
         else:
             params = (m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z)
-        broadcast = m.target_component == 0
-        handler = self._handlers.get(m.command)
         if handler is None:
             return [] if broadcast else [self._ack(m, UNSUPPORTED)]
         try:
@@ -261,11 +363,57 @@ class CameraComponent:
         return ACCEPTED, []
 
     def _request_message(self, p: Sequence[float], broadcast: bool, now: float) -> Reply:
-        if p[0] == mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION:
-            return ACCEPTED, [self.information()]
-        if p[0] == mavlink.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
-            return ACCEPTED, [self.status()]
-        return (None if broadcast else UNSUPPORTED), []
+        msg_id = p[0]
+        if msg_id in (mavlink.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, mavlink.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS):
+            if not self.has_stream:
+                return (None if broadcast else UNSUPPORTED), []
+            info = msg_id == mavlink.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION
+            make = self.stream_information if info else self.stream_status
+            return self._stream_reply(p[1], make)
+        if msg_id == mavlink.MAVLINK_MSG_ID_STORAGE_INFORMATION and p[1] not in (0, 1) and math.isfinite(p[1]):
+            return DENIED, []  # we have one (empty) storage entry
+        make = self._messages.get(int(msg_id)) if math.isfinite(msg_id) and msg_id == int(msg_id) else None
+        if make is None:
+            return (None if broadcast else UNSUPPORTED), []
+        return ACCEPTED, [make()]
+
+    def _stream_reply(self, stream_id: float, make: Callable[[], Any]) -> Reply:
+        if math.isfinite(stream_id) and stream_id not in (0, 1):
+            return DENIED, []  # one stream, id 1
+        if self.feed.frame_size is None:
+            return TEMPORARILY_REJECTED, []  # its resolution is not known before the first frame
+        return ACCEPTED, [make()]
+
+    def _legacy(self, make: Callable[[], Any]) -> Callable[[Sequence[float], bool, float], Reply]:
+        """MAV_CMD_REQUEST_CAMERA_SETTINGS / _CAMERA_CAPTURE_STATUS: param1 1 sends it, 0 is a no-op."""
+
+        def handler(p: Sequence[float], broadcast: bool, now: float) -> Reply:
+            if p[0] == 1:
+                return ACCEPTED, [make()]
+            return (ACCEPTED if p[0] == 0 else DENIED), []
+
+        return handler
+
+    def _request_storage(self, p: Sequence[float], broadcast: bool, now: float) -> Reply:
+        """MAV_CMD_REQUEST_STORAGE_INFORMATION: param1 storage id (0 all), param2 1 to request."""
+        if p[0] not in (0, 1) or p[1] not in (0, 1):
+            return DENIED, []
+        return ACCEPTED, ([self.storage_information()] if p[1] == 1 else [])
+
+    def _request_stream(self, make: Callable[[], Any]) -> Callable[[Sequence[float], bool, float], Reply]:
+        """MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION / _STATUS: param1 the stream id (0 all)."""
+
+        def handler(p: Sequence[float], broadcast: bool, now: float) -> Reply:
+            if not self.has_stream:
+                return (None if broadcast else UNSUPPORTED), []
+            return self._stream_reply(p[0], make)
+
+        return handler
+
+    def _streaming(self, p: Sequence[float], broadcast: bool, now: float) -> Reply:
+        if not self.has_stream:
+            return (None if broadcast else UNSUPPORTED), []
+        return (ACCEPTED if p[0] in (0, 1) else DENIED), []
 
     def _request_information(self, p: Sequence[float], broadcast: bool, now: float) -> Reply:
         if p[0] == 1:

@@ -50,14 +50,27 @@ def _float_in(low: float, high: float, *, open_low: bool = False) -> Any:
     return parse
 
 
-def _sysids(text: str) -> frozenset[int]:
+ALLOWED_DEFAULT = frozenset({255, 245})  # QGroundControl, MAVSDK (camera.DEFAULT_ALLOWED; no pymavlink here)
+
+
+def _sysids(text: str) -> frozenset[int] | None:
+    """'255,245' → {255, 245}; 'any' → None (every sender)."""
+    if text.strip().lower() == "any":
+        return None
     try:
         values = frozenset(int(p) for p in text.replace(" ", "").split(",") if p)
     except ValueError:
         values = frozenset({-1})
     if not values or not all(1 <= v <= 255 for v in values):
-        raise argparse.ArgumentTypeError(f"expected system ids 1-255 separated by commas, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected system ids 1-255 separated by commas, or 'any', got {text!r}")
     return values
+
+
+def _stream_url(text: str) -> str:
+    url = text.strip()
+    if not url or len(url.encode()) > 160:
+        raise argparse.ArgumentTypeError(f"expected a stream URL of 1 to 160 bytes, got {text!r}")
+    return url
 
 
 def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
@@ -81,15 +94,20 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--dialect", choices=("ardupilotmega", "common"), default="ardupilotmega", help="MAVLink dialect")
     g.add_argument(
-        "--sysid", type=_int_in(1, 254), help="our system id (the vehicle's); default: learned from the autopilot"
+        "--sysid",
+        type=_int_in(1, 254),
+        help="our system id (the vehicle's); default: speak at once as 1 and adopt the autopilot's id from its "
+        "heartbeat",
     )
     g.add_argument("--component", type=_int_in(100, 105), default=100, help="camera component id (default 100)")
     g.add_argument(
         "--allow-sysid",
         type=_sysids,
-        default=frozenset({255}),
+        default=ALLOWED_DEFAULT,
         metavar="IDS",
-        help="system ids whose commands are accepted besides the vehicle's own (default 255)",
+        help="system ids whose commands are accepted besides the vehicle's own: a list such as 255,245 "
+        "(the default: QGroundControl and MAVSDK) replaces the default, 'any' accepts everyone; with "
+        "--signing-key every correctly signed sender is accepted too. Others get COMMAND_ACK DENIED",
     )
     g.add_argument(
         "--signing-key",
@@ -107,18 +125,38 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
         "ground stations change it with MAV_CMD_SET_MESSAGE_INTERVAL",
     )
     g.add_argument(
+        "--stream-url",
+        type=_stream_url,
+        metavar="URL",
+        help="advertise this video stream to ground stations (VIDEO_STREAM_INFORMATION, e.g. "
+        "rtsp://192.168.1.10:8554/cam) at the resolution the tracker sees",
+    )
+    g.add_argument(
+        "--realtime",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="with --mavlink, play a video file at its own frame rate, as a camera would deliver it "
+        "(default; --no-realtime: as fast as it decodes), to rehearse with a recorded flight",
+    )
+    g.add_argument("--loop", action="store_true", help="with --mavlink, play a video file again at its end")
+    g.add_argument(
         "--link-timeout",
         type=_float_in(0.5, 600),
         default=5.0,
         metavar="S",
-        help="reopen the link after this long without a message (default 5)",
+        help="reopen a serial or TCP link after this long without a message (default 5; UDP links stay "
+        "up and keep sending)",
     )
     f = parser.add_argument_group("follow controller (off by default)")
     f.add_argument(
         "--follow",
-        action="store_true",
-        help="send body-frame velocity setpoints that keep the target centred and at its starting size, "
-        "only while armed in ArduCopter GUIDED or PX4 OFFBOARD",
+        nargs="?",
+        const="vehicle",
+        choices=("vehicle", "gimbal"),
+        metavar="vehicle|gimbal",
+        help="vehicle (the default with no value): send body-frame velocity setpoints that keep the target "
+        "centred and at its starting size, only while armed in ArduCopter GUIDED or PX4 OFFBOARD; gimbal: "
+        "point the gimbal at the target through the MAVLink gimbal manager (takes primary control)",
     )
     f.add_argument("--follow-rate", type=_float_in(10, 20), default=15.0, metavar="HZ", help="setpoint rate")
     f.add_argument("--max-speed", type=_float_in(0, 20, open_low=True), default=3.0, metavar="M/S")
@@ -132,6 +170,20 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     f.add_argument("--lateral-gain", type=_float_in(0, 10), default=0.0, help="m/s per unit horizontal error")
     f.add_argument("--forward-gain", type=_float_in(0, 20), default=2.0, help="m/s per unit log-size error")
     f.add_argument("--vertical-gain", type=_float_in(0, 10), default=1.0, help="m/s per unit vertical error")
+    f.add_argument(
+        "--gimbal-rate", type=_float_in(10, 50), default=20.0, metavar="HZ", help="gimbal setpoint rate (default 20)"
+    )
+    f.add_argument(
+        "--gimbal-gain", type=_float_in(0, 10, open_low=True), default=1.0, help="gimbal rad/s per unit offset"
+    )
+    f.add_argument(
+        "--max-gimbal-rate", type=_float_in(0, 360, open_low=True), default=60.0, metavar="DEG/S",
+        help="gimbal pitch and yaw rate limit (default 60)",
+    )  # fmt: skip
+    f.add_argument(
+        "--gimbal-device", type=_int_in(0, 255), default=0, metavar="ID",
+        help="gimbal device id at the gimbal manager (default 0: all)",
+    )  # fmt: skip
     s = parser.add_argument_group("service logging")
     s.add_argument("--log-file", type=Path, metavar="FILE", help="also log to this rotating file")
     s.add_argument("--log-max-bytes", type=_int_in(10_000, 10**10), default=10_000_000, metavar="N")
@@ -154,11 +206,19 @@ def _looks_missing(spec: str) -> bool:
 def _settings(args: argparse.Namespace, key: bytes | None) -> Any:
     from .camera import CameraSettings
     from .follow import FollowConfig, Gains, Limits
+    from .gimbal import GimbalConfig
     from .link import LinkSettings
     from .service import ServiceSettings
 
-    follow = None
-    if args.follow:
+    follow = gimbal = None
+    if args.follow == "gimbal":
+        gimbal = GimbalConfig(
+            rate_hz=args.gimbal_rate,
+            gain=args.gimbal_gain,
+            max_rate=math.radians(args.max_gimbal_rate),
+            gimbal_device_id=args.gimbal_device,
+        )
+    elif args.follow:
         follow = FollowConfig(
             gains=Gains(args.yaw_gain, args.lateral_gain, args.vertical_gain, args.forward_gain),
             limits=Limits(
@@ -175,10 +235,19 @@ def _settings(args: argparse.Namespace, key: bytes | None) -> Any:
         link=LinkSettings(
             args.mavlink, args.dialect, args.component, args.sysid, key, silence_timeout=args.link_timeout
         ),
-        camera=CameraSettings(args.component, args.tracking_rate, allowed_sysids=args.allow_sysid),
+        camera=CameraSettings(
+            args.component,
+            args.tracking_rate,
+            allowed_sysids=args.allow_sysid,
+            trust_signed=key is not None,
+            stream_url=args.stream_url,
+        ),
         follow=follow,
+        gimbal=gimbal,
         init_box=init,
         max_frames=getattr(args, "max_frames", None),
+        realtime=args.realtime,
+        loop=args.loop,
     )
 
 

@@ -32,6 +32,12 @@ def _options(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
 
 
 def _convert(action: argparse.Action, key: str, value: Any) -> Any:
+    if isinstance(action, argparse.BooleanOptionalAction):  # --realtime / --no-realtime
+        if not isinstance(value, bool):
+            raise ConfigError(f"'{key}' is a switch: use true or false, got {value!r}")
+        return value
+    if action.nargs == "?" and isinstance(value, bool):  # --follow [vehicle|gimbal]: true is the bare option
+        return action.const if value else action.default
     if action.nargs == 0:  # store_true / store_false / store_const
         if not isinstance(value, bool):
             raise ConfigError(f"'{key}' is a switch: use true or false, got {value!r}")

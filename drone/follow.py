@@ -7,14 +7,23 @@ velocity + yaw rate).
 
 Safety rules:
 - commands only while the autopilot's heartbeat (at most `heartbeat_timeout` old) says armed and in
-  ArduCopter GUIDED or PX4 OFFBOARD; leaving that mode or disarming ends commanding without another word;
+  ArduCopter GUIDED or PX4 OFFBOARD; leaving that mode or disarming ends commanding without another word
+  (PX4: leaving OFFBOARD goes back to streaming zeros, see below);
 - target lost or tracking stopped, a detection older than `stale_after`, or the heartbeat lost: zero
   velocity at once (repeated `stop_repeats` times at the setpoint rate against packet loss), then nothing;
-- PX4 only switches into OFFBOARD while setpoints are streaming, so with an armed PX4 vehicle and a target
-  tracked, zero setpoints are streamed (PX4 ignores them outside OFFBOARD) and real ones follow only after
-  `prestream` seconds of zeros in OFFBOARD;
-- 'uncertain' tracking holds: the velocity slews to zero and streaming goes on until the tracker is sure
-  again (follow) or has lost the target (stop).
+- trust (hysteresis): the controller follows the *trusted* target, not the tracker's raw state. Each new
+  result moves a level towards 1 ('tracking') or 0 (anything else) with time constant `trust_tau`
+  (frame time); trust is lost when the level falls to `trust_off` and regained when it climbs back to
+  `trust_on`. A score hovering around the tracker's threshold (tracking/uncertain at frame rate) leaves
+  the level in between and the controller where it was; a new target starts trusted (its init box);
+- 'uncertain' (not trusted) holds: the velocity slews to zero and streaming goes on until the target is
+  trusted again (follow) or lost (stop);
+- PX4 only switches into OFFBOARD while setpoints are streaming, and fails safe when they pause
+  (COM_OF_LOSS_T). So with an armed PX4 vehicle and a target (tracking, uncertain or lost: the tracker is
+  still on it), the stream never pauses: zeros outside OFFBOARD (PX4 ignores them there), zeros in
+  OFFBOARD whenever the detection is not trusted (lost or stale: zero at once, no slew), and real ones
+  only after `prestream` seconds of streaming. Only stopping the target (or an error), disarming, or the
+  autopilot's heartbeat lost ends it (zeros, then nothing).
 """
 
 from __future__ import annotations
@@ -33,6 +42,8 @@ PX4_OFFBOARD = 6  # PX4 main mode, custom_mode bits 16-23
 
 OFF, PRESTREAM, FOLLOW, HOLD, STOPPING = "off", "prestream", "follow", "hold", "stopping"
 ACTIVE_STATES = ("tracking", "uncertain")
+TARGET_STATES = ("tracking", "uncertain", "lost")  # the tracker is still on a target (it may find it again)
+MAX_TRUST_STEP = 0.2  # s: the most frame time one result counts for in the trust level
 
 
 @dataclass(frozen=True)
@@ -119,6 +130,9 @@ class FollowConfig:
     heartbeat_timeout: float = 2.0
     prestream: float = 1.0
     stop_repeats: int = 3
+    trust_tau: float = 0.3  # s of frame time: how fast the trust level follows the tracker's state
+    trust_on: float = 0.7  # level at which trust comes back
+    trust_off: float = 0.3  # level at which it is lost
 
 
 @dataclass(frozen=True)
@@ -177,6 +191,37 @@ def slew(previous: Velocity, target: Velocity, dt: float, limits: Limits) -> Vel
     )
 
 
+class Trust:
+    """Hysteresis on the tracker's state: `update` once per result (its frame time), `trusted` the verdict.
+
+    Works on the state string alone (whatever score thresholds the tracker uses): 'tracking' pulls the level
+    to 1, any other state to 0, as a first-order filter of time constant `tau` in frame time."""
+
+    def __init__(self, tau: float = 0.3, on: float = 0.7, off: float = 0.3) -> None:
+        self.tau, self.on, self.off = tau, on, off
+        self.level, self.trusted = 1.0, True
+        self._target: int | None = None
+        self._stamp: float | None = None
+        self.flips = 0
+
+    def update(self, target_id: int, state: str, stamp: float) -> bool:
+        if target_id != self._target:
+            self._target, self._stamp = target_id, stamp
+            self.level, self.trusted = (1.0, True) if state == "tracking" else (0.0, False)
+            return self.trusted
+        if self._stamp is not None and stamp <= self._stamp:
+            return self.trusted  # the same result again
+        dt = 0.0 if self._stamp is None else min(stamp - self._stamp, MAX_TRUST_STEP)  # a gap is not evidence
+        self._stamp = stamp
+        x = 1.0 if state == "tracking" else 0.0
+        self.level += (1.0 - math.exp(-dt / self.tau) if self.tau > 0 else 1.0) * (x - self.level)
+        if self.trusted and self.level <= self.off:
+            self.trusted, self.flips = False, self.flips + 1
+        elif not self.trusted and self.level >= self.on:
+            self.trusted, self.flips = True, self.flips + 1
+        return self.trusted
+
+
 class Follower:
     """The safety state machine around `velocity_for`; call `step` at the setpoint rate (periodic=True)
     and on every new detection (periodic=False). It returns the setpoint to send now, or None."""
@@ -185,6 +230,7 @@ class Follower:
         self.config = config
         self.state = OFF
         self.reason = "no target"
+        self.trust = Trust(config.trust_tau, config.trust_on, config.trust_off)
         self._target_id: int | None = None
         self._reference = 0.0
         self._last = ZERO
@@ -193,10 +239,13 @@ class Follower:
         self._stops_left = 0
 
     def _observe_target(self, det: Detection | None) -> None:
-        if det is None or det.target_id == self._target_id or det.state not in ACTIVE_STATES:
+        if det is None:
             return
-        self._target_id = det.target_id
-        self._reference = apparent_size(det.box, det.frame_size)  # first box of a target: its init box
+        if det.target_id != self._target_id and det.state in ACTIVE_STATES:
+            self._target_id = det.target_id
+            self._reference = apparent_size(det.box, det.frame_size)  # first box of a target: its init box
+        if det.target_id == self._target_id:
+            self.trust.update(det.target_id, det.state, det.stamp)
 
     def _go(self, state: str, reason: str) -> None:
         self.state, self.reason = state, reason
@@ -219,7 +268,9 @@ class Follower:
         in_mode = heartbeat and autopilot is not None and autopilot.in_control_mode
         fresh = det is not None and now - det.stamp <= cfg.stale_after
         target = det.state if det is not None else "idle"
-        usable = fresh and target in ACTIVE_STATES and det is not None and det.target_id == self._target_id
+        ours = det is not None and det.target_id == self._target_id
+        usable = fresh and target in ACTIVE_STATES and ours
+        trusted = usable and self.trust.trusted
 
         if self.state != OFF:
             if not heartbeat:
@@ -227,22 +278,25 @@ class Follower:
             if not armed:
                 self._go(OFF, "disarmed")
                 return None
-            if self.state == PRESTREAM:
-                return self._prestream(now, in_mode, usable, det, periodic)
-            if not in_mode:
-                self._go(OFF, f"mode {autopilot.custom_mode if autopilot else '?'} is not GUIDED/OFFBOARD")
-                return None
             if self.state == STOPPING:
-                return self._stopping(periodic)
+                if autopilot is not None and autopilot.flavour == "px4" and ours and target in TARGET_STATES:
+                    return self._px4(now, in_mode, fresh, target, trusted, det, periodic)  # a target again
+                return self._stopping(periodic) if in_mode else self._quiet_off(autopilot)
+            if autopilot is not None and autopilot.flavour == "px4":
+                if not (ours and target in TARGET_STATES):
+                    return self._stop(f"target {target}")
+                return self._px4(now, in_mode, fresh, target, trusted, det, periodic)
+            if not in_mode:
+                return self._quiet_off(autopilot)
             if not usable:
                 why = "detection stale" if not fresh else f"target {target}"
                 return self._stop(why)
-            self._go(FOLLOW if target == "tracking" else HOLD, f"target {target}")
+            self._go(FOLLOW if trusted else HOLD, f"target {target}" + ("" if trusted else " (not trusted)"))
             return self._command(now, det) if periodic and det is not None else None
 
-        # OFF: engage only on a sure target, armed, in the right mode (or PX4's prestream before it)
-        if not (armed and usable and target == "tracking" and autopilot is not None):
-            self.reason = self._why_off(heartbeat, armed, usable, target)
+        # OFF: engage only on a trusted target, armed, in the right mode (or PX4's stream before it)
+        if not (armed and trusted and target == "tracking" and autopilot is not None):
+            self.reason = self._why_off(heartbeat, armed, usable and trusted, target)
             return None
         if autopilot.flavour == "ardupilot" and in_mode:
             self._go(FOLLOW, "target tracking")
@@ -251,8 +305,13 @@ class Follower:
         if autopilot.flavour == "px4":
             self._go(PRESTREAM, "streaming zeros for OFFBOARD")
             self._prestream_since = now
+            self._last, self._last_time = ZERO, None
             return Setpoint(ZERO, "prestream") if periodic else None
         self.reason = "autopilot mode does not take velocity setpoints"
+        return None
+
+    def _quiet_off(self, autopilot: Autopilot | None) -> None:
+        self._go(OFF, f"mode {autopilot.custom_mode if autopilot else '?'} is not GUIDED/OFFBOARD")
         return None
 
     @staticmethod
@@ -262,20 +321,28 @@ class Follower:
         if not armed:
             return "disarmed"
         if not usable or target != "tracking":
-            return f"target {target}"
+            return f"target {target}" + (" (not trusted)" if target == "tracking" else "")
         return "mode"
 
-    def _prestream(
-        self, now: float, in_mode: bool, usable: bool, det: Detection | None, periodic: bool
+    def _px4(
+        self, now: float, in_mode: bool, fresh: bool, target: str, trusted: bool, det: Detection | None, periodic: bool
     ) -> Setpoint | None:
-        if not usable or det is None:
-            self._go(OFF, "target not tracked")  # only zeros were sent: nothing to stop
-            return None
-        if in_mode and now - self._prestream_since >= self.config.prestream:
-            self._go(FOLLOW if det.state == "tracking" else HOLD, "OFFBOARD")
+        """PX4 armed with a target: a setpoint on every periodic step, whatever the detection says."""
+        moving = not self._last.is_zero
+        if not in_mode or now - self._prestream_since < self.config.prestream:
+            self._go(PRESTREAM, "streaming zeros for OFFBOARD" if not in_mode else "OFFBOARD: zeros first")
             self._last, self._last_time = ZERO, None
-            return self._command(now, det) if periodic else None
-        return Setpoint(ZERO, "prestream") if periodic else None
+            if moving:  # left OFFBOARD while moving: the zero goes out at once
+                return Setpoint(ZERO, "prestream")
+            return Setpoint(ZERO, "prestream") if periodic else None
+        if not fresh or target not in ACTIVE_STATES:
+            self._go(HOLD, "detection stale" if not fresh else f"target {target}")
+            self._last, self._last_time = ZERO, None  # not trusted at all: zero at once, no slew
+            if moving:
+                return Setpoint(ZERO, f"zero: {self.reason}")
+            return Setpoint(ZERO, self.reason) if periodic else None
+        self._go(FOLLOW if trusted else HOLD, f"target {target}" + ("" if trusted else " (not trusted)"))
+        return self._command(now, det) if periodic and det is not None else None
 
     def _stopping(self, periodic: bool) -> Setpoint | None:
         if not periodic:

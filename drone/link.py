@@ -1,12 +1,15 @@
 """The MAVLink connection: open from a pymavlink connection string, receive, send, sign, and reopen by
 itself after loss. Owned by one thread (the MAVLink loop); nothing here blocks for long.
 
-Loss is an exception from the socket or serial port, end of file on TCP, or `silence_timeout` seconds
-without a single message; the link is then closed and reopened with a growing delay (`retry_min` to
-`retry_max`). A UDP link needs no reopen when its peer restarts, but reopening one costs nothing.
+Loss is an exception from the socket or serial port, end of file on TCP, or (serial and TCP only)
+`silence_timeout` seconds without a single message; the link is then closed and reopened with a growing
+delay (`retry_min` to `retry_max`). A UDP link is never torn down for silence: a `udpout:` peer that has
+not spoken yet (mavlink-router, a ground station listening) waits to hear from us first, and reopening would
+only cost heartbeats; the silence is logged (throttled) instead.
 
-System id: `sysid` when given, else learned from the first autopilot HEARTBEAT (component 1, autopilot
-not MAV_AUTOPILOT_INVALID). Nothing is sent before it is known, and it is never 255 (a GCS id).
+System id: `sysid` when given; otherwise we speak at once as system DEFAULT_SYSID (1, what autopilots use
+out of the box) and adopt the autopilot's id from its first HEARTBEAT (component 1, autopilot not
+MAV_AUTOPILOT_INVALID), logged; after that, heartbeats of another system are ignored. Never 255 (a GCS).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from .signing import SignatureCheck, UnsignedPolicy
 log = logging.getLogger(__name__)
 
 SIGNING_LINK_ID = 1
+DEFAULT_SYSID = 1  # our system id until the autopilot's heartbeat says otherwise
 
 
 @dataclass(frozen=True)
@@ -62,7 +66,8 @@ def _drop_partial_frame(mav: Any) -> None:
 class Link:
     def __init__(self, settings: LinkSettings) -> None:
         self.settings = settings
-        self.sysid: int | None = settings.sysid
+        self.sysid: int = settings.sysid if settings.sysid is not None else DEFAULT_SYSID
+        self.learned = settings.sysid is not None  # the id is configured or learned, not the default
         self.conn: mavutil.mavfile | None = None
         self.policy = UnsignedPolicy() if settings.signing_key is not None else None
         self.opened_at = 0.0
@@ -84,15 +89,25 @@ class Link:
         fd = getattr(self.conn, "fd", None)
         return fd if isinstance(fd, int) and fd >= 0 else None
 
+    @property
+    def is_udp(self) -> bool:
+        return isinstance(self.conn, mavutil.mavudp)
+
     def maintain(self, now: float) -> None:
-        """Open when due; treat a silent link as lost."""
+        """Open when due; treat a silent serial or TCP link as lost (a silent UDP link only as quiet)."""
         if self.conn is None:
             if now >= self._next_try:
                 self._open(now)
             return
         quiet_since = max(self.last_rx, self.opened_at)
         if now - quiet_since > self.settings.silence_timeout:
-            self.lost(now, f"no data for {self.settings.silence_timeout:g} s")
+            if not self.is_udp:
+                self.lost(now, f"no data for {self.settings.silence_timeout:g} s")
+            else:
+                self._throttle.log(
+                    logging.WARNING, "quiet", "MAVLink %s: nothing received for %.0f s (still sending)",
+                    self.settings.url, now - quiet_since,
+                )  # fmt: skip
 
     def _open(self, now: float) -> None:
         s = self.settings
@@ -101,7 +116,7 @@ class Link:
             conn = mavutil.mavlink_connection(
                 device,
                 baud=baud or 115200,
-                source_system=self.sysid or 0,
+                source_system=self.sysid,
                 source_component=s.component,
                 dialect=s.dialect,
                 autoreconnect=False,
@@ -218,18 +233,22 @@ class Link:
             )
 
     def adopt_sysid(self, sysid: int) -> bool:
-        """Take the autopilot's system id as ours (once); False when a different one is configured."""
-        if self.sysid is None:
+        """Take the autopilot's system id as ours (once); False when a different one is configured or learned."""
+        if not self.learned:
+            self.learned = True
+            if sysid != self.sysid:
+                log.info("system id %d adopted from the autopilot heartbeat (was %d)", sysid, self.sysid)
+            else:
+                log.info("system id %d confirmed by the autopilot heartbeat", sysid)
             self.sysid = sysid
-            log.info("system id %d learned from the autopilot heartbeat", sysid)
         if self.conn is not None:
             self.conn.mav.srcSystem = self.conn.source_system = self.sysid
         return self.sysid == sysid
 
     # -- send ---------------------------------------------------------------------------------------
     def send(self, msg: Any, now: float) -> bool:
-        """Send one message; False (and nothing sent) without a connection or a system id."""
-        if self.conn is None or self.sysid is None:
+        """Send one message; False (and nothing sent) without a connection."""
+        if self.conn is None:
             return False
         mav = self.conn.mav
         mav.srcSystem, mav.srcComponent = self.sysid, self.settings.component

@@ -2,9 +2,13 @@
 setpoints on their schedules. A tracker result wakes it at once (through a pipe), so a 275 or a stop
 setpoint leaves within a scheduler slice of the result, not a period later.
 
-Heartbeat: MAV_TYPE_CAMERA at `heartbeat_hz`, only while the tracker loop is alive (it ticks at least
+Heartbeat: MAV_TYPE_CAMERA at `heartbeat_hz` from the moment the link is open (as system 1 until the
+autopilot's heartbeat gives its id, unless --sysid), only while the tracker loop is alive (it ticks at least
 every 0.2 s, frames or not); system_status BOOT before the first frame, ACTIVE while frames arrive,
 CRITICAL when they stopped (the camera is being reopened).
+
+Gimbal following: GIMBAL_MANAGER_STATUS / _INFORMATION and the gimbal manager's COMMAND_ACKs from our system
+go to the GimbalFollower; its messages leave on every new result and at its own rate.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from typing import Any
 
 from .camera import STALLED_AFTER, CameraComponent, tracking_status
 from .follow import ZERO, Autopilot, Detection, Follower, Setpoint
+from .gimbal import GimbalFollower
 from .link import Link, is_autopilot_heartbeat
 from .logs import Throttle
 from .mav import mavlink
@@ -35,6 +40,7 @@ TYPE_MASK_VELOCITY_YAW_RATE = (
     | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
     | mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
 )  # = 1479: velocity and yaw rate only
+GIMBAL_MESSAGES = ("GIMBAL_MANAGER_STATUS", "GIMBAL_MANAGER_INFORMATION", "COMMAND_ACK")
 MAX_SLICE = 0.05  # longest select() wait: bounds how late a link open or a silence check can be
 
 
@@ -43,6 +49,8 @@ class LinkStats:
     heartbeats: int = 0
     statuses: int = 0
     setpoints: int = 0
+    gimbal: int = 0  # GIMBAL_MANAGER_SET_PITCHYAW sent
+    gimbal_reactions: list[float] = field(default_factory=list)  # result → zero rates sent (lost, stop), s
     latencies: list[float] = field(default_factory=list)  # tracker result → 275 sent, seconds
 
     def add_latency(self, value: float) -> None:
@@ -62,8 +70,11 @@ class LinkLoop:
         heartbeat_hz: float = 1.0,
         loop_stall: float = 2.0,
         boot_time: float | None = None,
+        gimbal: GimbalFollower | None = None,
     ) -> None:
         self.link, self.camera, self.feed, self.stop, self.follower = link, camera, feed, stop, follower
+        self.gimbal = gimbal
+        self._next_gimbal = 0.0
         self.heartbeat_period = 1.0 / heartbeat_hz
         self.loop_stall = loop_stall
         self.boot = time.monotonic() if boot_time is None else boot_time
@@ -135,6 +146,8 @@ class LinkLoop:
             deadlines.append(wake)
         if self.follower is not None:
             deadlines.append(self._next_setpoint)
+        if self.gimbal is not None:
+            deadlines.append(self._next_gimbal)
         return min(deadlines)
 
     # -- receive ------------------------------------------------------------------------------------
@@ -147,6 +160,12 @@ class LinkLoop:
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             for reply in self.camera.handle(msg, self.link.sysid, now):
                 self.link.send(reply, now)
+        if self.gimbal is not None and kind in GIMBAL_MESSAGES and msg.get_srcSystem() == self.link.sysid:
+            self.gimbal.on_message(msg, self._me)
+
+    @property
+    def _me(self) -> tuple[int, int]:
+        return self.link.sysid, self.link.settings.component
 
     def _is_our_autopilot(self, msg: Any) -> bool:
         sysid = msg.get_srcSystem()
@@ -168,6 +187,12 @@ class LinkLoop:
             self._send_status(snapshot, now, fresh=True)
         if self.follower is not None:
             self._send_setpoint(self.follower.step(now, self.autopilot, _detection(snapshot), periodic=False), now)
+        if self.gimbal is not None:
+            messages = self.gimbal.step(now, _detection(snapshot), self._me, periodic=False)
+            self._send_gimbal(messages, now)
+            if any(m.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW" for m in messages):
+                self.stats.gimbal_reactions.append(time.monotonic() - snapshot.result_time)
+                del self.stats.gimbal_reactions[:-1000]
 
     def _send_status(self, snapshot: Snapshot, now: float, fresh: bool) -> None:
         stalled = not fresh and now - snapshot.result_time > STALLED_AFTER
@@ -192,6 +217,14 @@ class LinkLoop:
         if self.follower is not None and now >= self._next_setpoint:
             self._next_setpoint = _advance(self._next_setpoint, 1.0 / self.follower.config.rate_hz, now)
             self._send_setpoint(self.follower.step(now, self.autopilot, _detection(snapshot), periodic=True), now)
+        if self.gimbal is not None and now >= self._next_gimbal:
+            self._next_gimbal = _advance(self._next_gimbal, 1.0 / self.gimbal.config.rate_hz, now)
+            self._send_gimbal(self.gimbal.step(now, _detection(snapshot), self._me, periodic=True), now)
+
+    def _send_gimbal(self, messages: list[Any], now: float) -> None:
+        for msg in messages:
+            if self.link.send(msg, now) and msg.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW":
+                self.stats.gimbal += 1
 
     def _heartbeat(self, now: float) -> Any:
         last = self.feed.last_frame_at
@@ -208,7 +241,7 @@ class LinkLoop:
         if self.follower.state != self._follow_state:
             log.info("follow: %s -> %s (%s)", self._follow_state, self.follower.state, self.follower.reason)
             self._follow_state = self.follower.state
-        if setpoint is None or self.link.sysid is None:
+        if setpoint is None:
             return
         v = setpoint.velocity
         msg = mavlink.MAVLink_set_position_target_local_ned_message(
@@ -223,6 +256,11 @@ class LinkLoop:
         if self.follower is not None and self.follower.state not in ("off", "prestream"):
             self._send_setpoint(Setpoint(ZERO, "service stopping"), time.monotonic())
             log.info("follow: zero velocity sent on shutdown")
+        if self.gimbal is not None:
+            messages = self.gimbal.release(self._me)
+            if messages:
+                self._send_gimbal(messages, time.monotonic())
+                log.info("gimbal: zero rates and control released on shutdown")
 
 
 def _advance(due: float, period: float, now: float) -> float:

@@ -8,6 +8,7 @@ is fed only while both the tracker loop and the MAVLink loop make progress.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -20,6 +21,7 @@ from dadiff.runtime.outputs import Sink
 
 from .camera import CameraComponent, CameraSettings
 from .follow import FollowConfig, Follower
+from .gimbal import GimbalConfig, GimbalFollower
 from .link import Link, LinkSettings
 from .linkloop import LinkLoop
 from .systemd import Notifier
@@ -33,13 +35,16 @@ log = logging.getLogger(__name__)
 class ServiceSettings:
     link: LinkSettings
     camera: CameraSettings = field(default_factory=CameraSettings)
-    follow: FollowConfig | None = None  # None: the follow controller is off
+    follow: FollowConfig | None = None  # None: the vehicle follow controller is off
+    gimbal: GimbalConfig | None = None  # None: gimbal following is off
     init_box: tuple[float, float, float, float] | None = None  # pixels; None: wait for a track command
     max_frames: int | None = None
     heartbeat_hz: float = 1.0
     status_every: float = 30.0
     loop_stall: float = 2.0
     video_retry: tuple[float, float] = (0.5, 5.0)
+    realtime: bool = True  # a video file plays at its own frame rate, as a camera would deliver it
+    loop: bool = False  # a video file starts again at its end
 
 
 class Service:
@@ -56,12 +61,18 @@ class Service:
         self.notifier = notifier or Notifier({})
         self.sinks = list(sinks)
         self.feed = TrackFeed()
-        self.grabber = FrameGrabber(open_source, self.stop_event, *settings.video_retry)
+        self.grabber = FrameGrabber(
+            open_source, self.stop_event, *settings.video_retry, realtime=settings.realtime, loop=settings.loop
+        )
         self.tracking = TrackingLoop(tracker, self.grabber, self.feed, self.stop_event, sinks, settings.max_frames)
         self.link = Link(settings.link)
         boot = time.monotonic()
-        self.camera = CameraComponent(settings.camera, self.feed, lambda: int((time.monotonic() - boot) * 1000))
+        camera = settings.camera
+        if settings.link.signing_key is not None:  # signing on: every correctly signed sender may command
+            camera = dataclasses.replace(camera, trust_signed=True)
+        self.camera = CameraComponent(camera, self.feed, lambda: int((time.monotonic() - boot) * 1000))
         self.follower = Follower(settings.follow) if settings.follow is not None else None
+        self.gimbal = GimbalFollower(settings.gimbal) if settings.gimbal is not None else None
         self.loop = LinkLoop(
             self.link,
             self.camera,
@@ -71,6 +82,7 @@ class Service:
             heartbeat_hz=settings.heartbeat_hz,
             loop_stall=settings.loop_stall,
             boot_time=boot,
+            gimbal=self.gimbal,
         )
         if settings.init_box is not None:
             self.feed.request(Start(pixels=settings.init_box))
@@ -137,6 +149,8 @@ class Service:
         snap = self.feed.latest()
         stats, link = self.loop.stats, self.link
         follow = f", follow {self.follower.state} ({self.follower.reason})" if self.follower else ""
+        if self.gimbal is not None:
+            follow += f", gimbal {self.gimbal.state} ({self.gimbal.reason}), {stats.gimbal} gimbal setpoints"
         fps = self.tracking.stats.fps_recent
         return (
             f"{snap.state} {snap.score:.2f}, {self.tracking.stats.frames} frames"

@@ -94,6 +94,7 @@ class TrackFeed:
         self.frame_size: tuple[int, int] | None = None
         self.last_frame_at: float | None = None
         self.loop_tick_at = time.monotonic()
+        self._interval: float | None = None  # smoothed time between frames, seconds
 
     def request(self, request: Start | Stop) -> None:
         with self._lock:
@@ -120,7 +121,16 @@ class TrackFeed:
         self.loop_tick_at = time.monotonic()
 
     def saw_frame(self, size: tuple[int, int], at: float) -> None:
+        last = self.last_frame_at
+        if last is not None and 0 < at - last < 5.0:
+            gap = at - last
+            self._interval = gap if self._interval is None else self._interval + 0.1 * (gap - self._interval)
         self.frame_size, self.last_frame_at = size, at
+
+    @property
+    def frame_rate(self) -> float:
+        """Frames per second the tracker receives (smoothed; 0 before two frames)."""
+        return 0.0 if not self._interval else round(1.0 / self._interval, 2)
 
 
 class TrackingLoop:

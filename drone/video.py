@@ -1,8 +1,12 @@
 """The frame grabber: reads a video source on its own thread and reopens it after loss.
 
 Live sources (camera, stream) keep only the newest frame, so the tracker always works on the present
-and never on a backlog; files and folders hand over every frame and end the run at their end. Opening
-(an RTSP timeout can take many seconds) and reconnecting never block the tracker loop.
+and never on a backlog. Files and folders: with `realtime` (the service's default, for rehearsing with a
+recorded flight) they play at their own frame rate (a folder at DEFAULT_FPS) and are handed over as a
+camera would deliver them (newest frame only: a slow tracker skips frames, it does not fall behind);
+without it every frame is handed over as fast as the tracker takes them. At their end they end the run, or
+with `loop` start again. Opening (an RTSP timeout can take many seconds) and reconnecting never block the
+tracker loop.
 """
 
 from __future__ import annotations
@@ -19,6 +23,8 @@ from dadiff.runtime.sources import Frame
 from .logs import Throttle
 
 log = logging.getLogger(__name__)
+
+DEFAULT_FPS = 30.0  # pace of a source that does not say its frame rate (image folders)
 
 
 class Source(Protocol):
@@ -45,9 +51,13 @@ class FrameGrabber:
         stop: threading.Event,
         retry_min: float = 0.5,
         retry_max: float = 5.0,
+        realtime: bool = False,
+        loop: bool = False,
     ) -> None:
         self._open, self._stop = open_source, stop
         self.retry_min, self.retry_max = retry_min, retry_max
+        self.realtime, self.loop = realtime, loop
+        self.plays = 0  # times a file or folder was played to its end
         self._cond = threading.Condition()
         self._slot: Grabbed | None = None
         self.finished = False  # a file or folder ended
@@ -80,6 +90,7 @@ class FrameGrabber:
 
     def run(self) -> None:
         delay = self.retry_min
+        resume_at: float | None = None  # --loop: when the next play's first frame is due (no seam)
         while not self._stop.is_set():
             try:
                 source = self._open()
@@ -90,11 +101,24 @@ class FrameGrabber:
                 continue
             self.opens += 1
             live = bool(getattr(source, "live", True))
-            log.info("video opened (%s)", "live" if live else "file")
+            paced = not live and self.realtime
+            fps = float(getattr(source, "fps", None) or DEFAULT_FPS)
+            log.info("video opened (%s)", "live" if live else f"file, {fps:g} FPS realtime" if paced else "file")
+            start, count, yielded = resume_at or time.monotonic(), 0, 0
+            resume_at = None
             try:
                 for frame in source.frames():
                     delay = self.retry_min
-                    self._put(Grabbed(frame, time.monotonic()), live)
+                    yielded += 1
+                    if paced:  # frame k is due k / fps after the first; late frames go at once, phase re-based
+                        due = start + count / fps
+                        wait = due - time.monotonic()
+                        if wait > 0 and self._stop.wait(wait):
+                            break
+                        if wait < -1.0 / fps:
+                            start = time.monotonic() - count / fps
+                        count += 1
+                    self._put(Grabbed(frame, time.monotonic()), live or paced)
                     if self._stop.is_set():
                         break
             except Exception as exc:
@@ -107,6 +131,16 @@ class FrameGrabber:
             if self._stop.is_set():
                 break
             if not live:
+                self.plays += 1
+                if self.loop and yielded:
+                    log.info("video ended; playing it again (--loop)")
+                    resume_at = start + count / fps if paced else None
+                    continue
+                if self.loop:  # nothing at all: do not spin on a broken file
+                    log.warning("video gave no frames; retrying in %.1f s", delay)
+                    self._stop.wait(delay)
+                    delay = min(delay * 2, self.retry_max)
+                    continue
                 log.info("video ended")
                 break
             log.warning("video lost; reopening in %.1f s", delay)

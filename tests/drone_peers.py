@@ -160,6 +160,95 @@ class Autopilot(Peer):
         return self.received("SET_POSITION_TARGET_LOCAL_NED", since)
 
 
+class Px4(Autopilot):
+    """PX4's OFFBOARD rules, as PX4 SIH enforces them: the switch into OFFBOARD is refused unless setpoints
+    are streaming (one within `switch_window`), and in OFFBOARD a gap longer than `loss_timeout`
+    (COM_OF_LOSS_T) is a failsafe: the vehicle drops to POSCTL and `failsafes` counts it."""
+
+    OFFBOARD, POSCTL = 6 << 16, 3 << 16
+
+    def __init__(self, url: str, loss_timeout: float = 0.5, switch_window: float = 0.5, **kw: Any) -> None:
+        super().__init__(url, "px4", **kw)
+        self.loss_timeout, self.switch_window = loss_timeout, switch_window
+        self.failsafes = 0
+        self.max_gap = 0.0  # longest gap between setpoints while in OFFBOARD
+        self._offboard_since: float | None = None
+
+    def request_offboard(self) -> bool:
+        last = self.setpoints()
+        if not last or time.monotonic() - last[-1].at > self.switch_window:
+            return False
+        self.set_mode(True, self.OFFBOARD)
+        self._offboard_since = time.monotonic()
+        return True
+
+    def tick(self) -> None:
+        if self.custom_mode == self.OFFBOARD and self._offboard_since is not None:
+            now = time.monotonic()
+            times = [self._offboard_since] + [r.at for r in self.setpoints(self._offboard_since)]
+            gaps = [b - a for a, b in zip(times, times[1:], strict=False)] + [now - times[-1]]
+            self.max_gap = max(self.max_gap, *gaps)
+            if now - times[-1] > self.loss_timeout:
+                self.failsafes += 1
+                self._offboard_since = None
+                self.set_mode(True, self.POSCTL)
+        super().tick()
+
+
+class GimbalManager(Peer):
+    """A MAVLink gimbal manager (protocol v2) that enforces who is in control: GIMBAL_MANAGER_STATUS at 5 Hz,
+    MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE sets (or with -3 releases) primary control and is ACKed,
+    GIMBAL_MANAGER_SET_PITCHYAW is obeyed only from the primary controller (others are counted in
+    `ignored`). `commands` records (time, pitch_rate, yaw_rate, pitch, yaw, flags) of the obeyed ones."""
+
+    def __init__(self, url: str, sysid: int = 1, compid: int = 154, **kw: Any) -> None:
+        super().__init__(url, sysid, compid, **kw)
+        self.primary = (0, 0)
+        self.commands: list[tuple[float, float, float, float, float, int]] = []
+        self.ignored = 0
+        self.configures: list[tuple[float, tuple[int, int], float, float]] = []
+        self.answer = True  # False: ignore CONFIGURE commands (a manager that does not answer)
+        self._next = 0.0
+        self._handled = 0
+
+    def take_control(self, sysid: int, compid: int) -> None:
+        """Someone else (a pilot in the ground station) takes primary control."""
+        self.primary = (sysid, compid)
+        self._next = 0.0
+
+    def tick(self) -> None:
+        with self._lock:
+            new, self._handled = self.log[self._handled :], len(self.log)
+        for r in new:
+            self._handle(r)
+        now = time.monotonic()
+        if now >= self._next:
+            self._next = now + 0.2
+            self.send(mavlink.MAVLink_gimbal_manager_status_message(0, 0, 0, *self.primary, 0, 0))
+
+    def _handle(self, r: Received) -> None:
+        msg, source = r.msg, (r.msg.get_srcSystem(), r.msg.get_srcComponent())
+        kind = msg.get_type()
+        if kind == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE:
+            if msg.target_component not in (0, self.compid) or not self.answer:
+                return
+            self.configures.append((r.at, source, msg.param1, msg.param2))
+            if msg.param1 == -3 and msg.param2 == -3:
+                if self.primary == source:
+                    self.primary = (0, 0)
+            elif msg.param1 == -2:
+                self.primary = source
+            elif msg.param1 >= 0:
+                self.primary = (int(msg.param1), int(msg.param2))
+            self._next = 0.0
+            self.send(mavlink.MAVLink_command_ack_message(msg.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, *source))
+        elif kind == "GIMBAL_MANAGER_SET_PITCHYAW" and msg.target_component in (0, self.compid):
+            if source != self.primary:
+                self.ignored += 1
+                return
+            self.commands.append((r.at, msg.pitch_rate, msg.yaw_rate, msg.pitch, msg.yaw, msg.flags))
+
+
 class GroundStation(Peer):
     def __init__(self, url: str, sysid: int = 255, compid: int = 190, **kw: Any) -> None:
         super().__init__(url, sysid, compid, **kw)
@@ -219,6 +308,8 @@ class FakeTracker:
         self.running.set()
         self.updates: list[tuple[float, str, tuple[float, float, float, float]]] = []
         self.lock = threading.Lock()
+        self.pattern: list[str] | None = None  # states to cycle through, one per update (a flickering score)
+        self.drift = 1.0  # px per update
 
     def init(self, frame: np.ndarray, box: tuple[float, float, float, float]) -> None:
         with self.lock:
@@ -232,10 +323,13 @@ class FakeTracker:
                 self.fail_next -= 1
                 raise RuntimeError("simulated tracker failure")
             x, y, w, h = self.box
-            if self.state != "lost":
-                self.box = (x + 1.0, y, w, h)
-            result = FakeResult(self.box, 0.9 if self.state == "tracking" else 0.3, self.state, {"total": 0.001})
-            self.updates.append((time.monotonic(), self.state, self.box))
+            state = self.pattern[len(self.updates) % len(self.pattern)] if self.pattern else self.state
+            if state != "lost":
+                self.box = (x + self.drift, y, w, h)
+            score = {"tracking": 0.55, "uncertain": 0.45}.get(state, 0.1) if self.pattern else None
+            score = score if score is not None else (0.9 if state == "tracking" else 0.3)
+            result = FakeResult(self.box, score, state, {"total": 0.001})
+            self.updates.append((time.monotonic(), state, self.box))
             return result
 
 
@@ -298,6 +392,7 @@ class Rig:
         flavour: str = "ardupilot",
         source: dict[str, Any] | None = None,
         notifier: Any = None,
+        autopilot: Any = None,
         **settings: Any,
     ) -> None:
         from dadiff.drone.link import LinkSettings
@@ -314,7 +409,8 @@ class Rig:
         # peers sign with the service's key unless given their own (b"": unsigned)
         ap_key = (ap_key if ap_key is not None else key) or None
         gcs_key = (gcs_key if gcs_key is not None else key) or None
-        self.ap = Autopilot(f"udpout:127.0.0.1:{self.port}", flavour, key=ap_key)
+        make = autopilot or (lambda url, **kw: Autopilot(url, flavour, **kw))
+        self.ap = make(f"udpout:127.0.0.1:{self.port}", key=ap_key)
         self.gcs = GroundStation(f"udpout:127.0.0.1:{self.port}", key=gcs_key)
         self.rc: int | None = None
         self._thread = threading.Thread(target=self._run, daemon=True)

@@ -19,6 +19,7 @@ RECT, POINT, STOP = (
     mavlink.MAV_CMD_CAMERA_STOP_TRACKING,
 )
 NAN = float("nan")
+FIELDS = ("point_x", "point_y", "radius", "rec_top_x", "rec_top_y", "rec_bottom_x", "rec_bottom_y")
 
 
 def wire(msg, src=(255, 190)):
@@ -123,7 +124,10 @@ def test_camera_information(camera: CameraComponent) -> None:
 def test_addressing_and_sources(camera: CameraComponent) -> None:
     assert camera.handle(long(RECT, 0.1, 0.1, 0.3, 0.3, target=(2, COMP)), SYS, 0.0) == []  # other vehicle
     assert camera.handle(long(RECT, 0.1, 0.1, 0.3, 0.3, target=(SYS, 101)), SYS, 0.0) == []  # other camera
-    assert camera.handle(long(RECT, 0.1, 0.1, 0.3, 0.3, src=(200, 190)), SYS, 0.0) == []  # not allowed
+    stranger = camera.handle(long(RECT, 0.1, 0.1, 0.3, 0.3, src=(200, 190)), SYS, 0.0)  # not allowed: DENIED
+    assert ack(stranger, RECT, to=(200, 190)) == DENIED and len(stranger) == 1 and camera.ignored == 1
+    mavsdk = camera.handle(long(RECT, 0.1, 0.1, 0.3, 0.3, src=(245, 190)), SYS, 0.0)  # MAVSDK's default id
+    assert ack(mavsdk, RECT, to=(245, 190)) == ACCEPTED
     from_vehicle = camera.handle(long(RECT, 0.1, 0.1, 0.3, 0.3, src=(SYS, 1)), SYS, 0.0)
     assert ack(from_vehicle, RECT, to=(SYS, 1)) == ACCEPTED
     assert camera.handle(long(RECT, 0.1, 0.1, 0.3, 0.3), None, 0.0) == []  # our system id not known yet
@@ -165,23 +169,31 @@ def test_status_message_mapping() -> None:
     assert msg.tracking_mode == mavlink.CAMERA_TRACKING_MODE_RECTANGLE
     assert msg.target_data == mavlink.CAMERA_TRACKING_TARGET_DATA_IN_STATUS
     assert (msg.rec_top_x, msg.rec_top_y, msg.rec_bottom_x, msg.rec_bottom_y) == (0.1, 0.1, 0.3, 0.3)
-    assert all(math.isnan(v) for v in (msg.point_x, msg.point_y, msg.radius))
+    assert (msg.point_x, msg.point_y, msg.radius) == pytest.approx((0.2, 0.2, 0.1))  # centre, half-width
     coasting = tracking_status(snap("uncertain"))
     assert coasting.tracking_status == (
         mavlink.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE | mavlink.CAMERA_TRACKING_STATUS_FLAGS_COASTING
     )
     clipped = tracking_status(snap(box=(-20.0, 400.0, 100.0, 200.0)))
     assert (clipped.rec_top_x, clipped.rec_bottom_y) == (0.0, 1.0)
-    for state, flag in (("lost", "IDLE"), ("idle", "IDLE"), ("error", "ERROR")):
+    for state in ("lost", "idle"):  # IDLE: a ground station reads nothing, NaN says "unknown"
         msg = tracking_status(snap(state, None if state != "lost" else (1.0, 1.0, 5.0, 5.0)))
-        assert msg.tracking_status == getattr(mavlink, f"CAMERA_TRACKING_STATUS_FLAGS_{flag}")
+        assert msg.tracking_status == mavlink.CAMERA_TRACKING_STATUS_FLAGS_IDLE
         assert msg.tracking_mode == mavlink.CAMERA_TRACKING_MODE_NONE
-        assert all(math.isnan(getattr(msg, f)) for f in ("rec_top_x", "rec_top_y", "rec_bottom_x", "rec_bottom_y"))
+        assert all(math.isnan(getattr(msg, f)) for f in FIELDS)
+    # any other status: QGroundControl reads the rectangle (mode RECTANGLE) or the point fields: never NaN
+    for msg in (tracking_status(snap("error", None)), tracking_status(snap(), stalled=True)):
+        assert msg.tracking_status == mavlink.CAMERA_TRACKING_STATUS_FLAGS_ERROR
+        assert msg.tracking_mode == mavlink.CAMERA_TRACKING_MODE_NONE
+        assert all(math.isfinite(getattr(msg, f)) for f in FIELDS)
+    for state in ("tracking", "uncertain"):
+        assert all(math.isfinite(getattr(tracking_status(snap(state)), f)) for f in FIELDS)
+    assert tracking_status(snap("tracking", None)).tracking_status == mavlink.CAMERA_TRACKING_STATUS_FLAGS_ERROR
 
 
 def test_stalled_tracking_is_an_error() -> None:
     msg = tracking_status(snap(), stalled=True)
-    assert msg.tracking_status == mavlink.CAMERA_TRACKING_STATUS_FLAGS_ERROR and math.isnan(msg.rec_top_x)
+    assert msg.tracking_status == mavlink.CAMERA_TRACKING_STATUS_FLAGS_ERROR and msg.rec_top_x == 0.0  # not the box
     assert tracking_status(snap("idle", None), stalled=True).tracking_status == 0  # idle stays idle
 
 
@@ -198,3 +210,96 @@ def test_stream_schedule_keeps_the_mean_rate() -> None:
     assert len(sent) == pytest.approx(10, abs=1)
     assert stream.poll(5.0001, fresh=True, active=True, changed=True)  # a state change goes out at once
     assert stream.set_interval_us(-1, 6.0) and not stream.poll(7.0, fresh=True, active=True, changed=True)
+
+
+def test_who_may_command(feed: TrackFeed) -> None:
+    def result(camera: CameraComponent, src: tuple[int, int], signed: bool = False, target=(SYS, COMP)):
+        msg = long(STOP, src=src, target=target)
+        msg._signed = signed
+        replies = camera.handle(msg, SYS, 0.0)
+        return replies[0].result if replies else None
+
+    default = CameraComponent(CameraSettings(), feed, lambda: 0)
+    assert [result(default, (s, 190)) for s in (255, 245, SYS, 200)] == [ACCEPTED, ACCEPTED, ACCEPTED, DENIED]
+    assert result(default, (200, 190), signed=True) == DENIED  # signed, but signing is off here
+    anyone = CameraComponent(CameraSettings(allowed_sysids=None), feed, lambda: 0)
+    assert result(anyone, (200, 190)) == ACCEPTED and result(anyone, (17, 1)) == ACCEPTED
+    only = CameraComponent(CameraSettings(allowed_sysids=frozenset({200})), feed, lambda: 0)  # replaces the list
+    assert [result(only, (s, 190)) for s in (200, 255, 245, SYS)] == [ACCEPTED, DENIED, DENIED, ACCEPTED]
+    signed = CameraComponent(CameraSettings(allowed_sysids=frozenset(), trust_signed=True), feed, lambda: 0)
+    assert result(signed, (200, 190), signed=True) == ACCEPTED and result(signed, (200, 190)) == DENIED
+    # a refused sender's broadcast command that is not ours stays unanswered (it is for someone else)
+    arm = wire(
+        mavlink.MAVLink_command_long_message(SYS, 0, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0),
+        (200, 1),
+    )
+    assert default.handle(arm, SYS, 0.0) == []
+    assert result(default, (200, 190), target=(SYS, 0)) == DENIED  # a broadcast STOP is ours: DENIED
+
+
+def test_what_ground_stations_request(camera: CameraComponent) -> None:
+    """The requests QGroundControl and MAVSDK retry or poll: answered with minimal valid content."""
+    request = mavlink.MAV_CMD_REQUEST_MESSAGE
+    expected = {260: "CAMERA_SETTINGS", 261: "STORAGE_INFORMATION", 262: "CAMERA_CAPTURE_STATUS"}
+    for msg_id, name in expected.items():
+        replies = camera.handle(long(request, msg_id), SYS, 0.0)
+        assert ack(replies, request) == ACCEPTED and [r.get_type() for r in replies[1:]] == [name]
+    legacy = [
+        (mavlink.MAV_CMD_REQUEST_CAMERA_SETTINGS, (1,), "CAMERA_SETTINGS"),
+        (mavlink.MAV_CMD_REQUEST_STORAGE_INFORMATION, (0, 1), "STORAGE_INFORMATION"),
+        (mavlink.MAV_CMD_REQUEST_CAMERA_CAPTURE_STATUS, (1,), "CAMERA_CAPTURE_STATUS"),
+    ]
+    for command, params, name in legacy:
+        replies = camera.handle(long(command, *params), SYS, 0.0)
+        assert ack(replies, command) == ACCEPTED and [r.get_type() for r in replies[1:]] == [name]
+    settings = camera.handle(long(request, 260), SYS, 0.0)[1]
+    assert settings.mode_id == mavlink.CAMERA_MODE_VIDEO and math.isnan(settings.zoomLevel)
+    storage = camera.handle(long(request, 261), SYS, 0.0)[1]
+    assert (storage.storage_id, storage.storage_count, storage.status) == (1, 1, mavlink.STORAGE_STATUS_NOT_SUPPORTED)
+    capture = camera.handle(long(request, 262), SYS, 0.0)[1]
+    assert (capture.image_status, capture.video_status, capture.recording_time_ms) == (0, 0, 0)
+    for msg in (settings, storage, capture):  # they pack: valid messages
+        assert wire(msg).get_type() == msg.get_type()
+    assert ack(camera.handle(long(request, 261, 2), SYS, 0.0), request) == DENIED  # no second storage
+    # no --stream-url: no video stream to tell about
+    assert not camera.information().flags & mavlink.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
+    for params in ((request, 269), (request, 270), (mavlink.MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION, 0)):
+        assert ack(camera.handle(long(*params), SYS, 0.0), params[0]) == UNSUPPORTED
+    assert camera.handle(long(request, 269, target=(SYS, 0)), SYS, 0.0) == []  # broadcast: not ours
+
+
+def test_video_stream_advertised() -> None:
+    feed = TrackFeed()
+    url = "rtsp://192.168.1.10:8554/cam"
+    camera = CameraComponent(CameraSettings(stream_url=url), feed, lambda: 0)
+    request = mavlink.MAV_CMD_REQUEST_MESSAGE
+    assert camera.information().flags & mavlink.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
+    assert ack(camera.handle(long(request, 269), SYS, 0.0), request) == TEMP  # resolution not known yet
+    feed.saw_frame((1280, 720), 0.0)
+    feed.saw_frame((1280, 720), 0.04)
+    for command, params, name in (
+        (request, (269, 0), "VIDEO_STREAM_INFORMATION"),
+        (request, (270, 1), "VIDEO_STREAM_STATUS"),
+        (mavlink.MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION, (1,), "VIDEO_STREAM_INFORMATION"),
+        (mavlink.MAV_CMD_REQUEST_VIDEO_STREAM_STATUS, (0,), "VIDEO_STREAM_STATUS"),
+    ):
+        replies = camera.handle(long(command, *params), SYS, 0.0)
+        assert ack(replies, command) == ACCEPTED and replies[1].get_type() == name
+        msg = wire(replies[1])
+        assert (msg.stream_id, msg.resolution_h, msg.resolution_v) == (1, 1280, 720)  # what the tracker normalises on
+        assert msg.flags & mavlink.VIDEO_STREAM_STATUS_FLAGS_RUNNING and msg.framerate == pytest.approx(25.0)
+    info = wire(camera.handle(long(request, 269), SYS, 0.0)[1])
+    assert (info.count, info.type, info.uri) == (1, mavlink.VIDEO_STREAM_TYPE_RTSP, url)
+    assert ack(camera.handle(long(request, 269, 2), SYS, 0.0), request) == DENIED  # one stream
+    assert ack(camera.handle(long(mavlink.MAV_CMD_VIDEO_START_STREAMING, 1), SYS, 0.0), 2502) == ACCEPTED
+
+
+def test_qgc_tracking_status_interval(camera: CameraComponent) -> None:
+    """QGroundControl: SET_MESSAGE_INTERVAL(275, 500000) after TRACK_RECTANGLE, (275, -1) after STOP."""
+    set_iv, status = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS
+    assert ack(camera.handle(long(RECT, 0.4, 0.4, 0.6, 0.6), SYS, 0.0), RECT) == ACCEPTED
+    assert ack(camera.handle(long(set_iv, status, 500000), SYS, 0.0), set_iv) == ACCEPTED
+    assert camera.stream.interval_us == 500000
+    assert ack(camera.handle(long(STOP), SYS, 0.0), STOP) == ACCEPTED
+    assert ack(camera.handle(long(set_iv, status, -1), SYS, 0.0), set_iv) == ACCEPTED
+    assert camera.stream.interval_us == -1

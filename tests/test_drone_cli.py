@@ -9,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -80,7 +81,9 @@ def test_config_file_run_streams_the_tracked_boxes(media: dict[str, Path], tmp_p
     ("lines", "message"),
     [
         ('vidoe = "x.mp4"', "unknown key 'vidoe'"),
-        ("follow = 1", "'follow' is a switch"),
+        ("follow = 1", "'follow': '1' is not one of vehicle, gimbal"),
+        ("realtime = 1", "'realtime' is a switch"),
+        ('allow-sysid = "everyone"', "or 'any'"),
         ("sysid = 255", "'sysid': expected an integer from 1 to 254"),
         ('dialect = "px4"', "'dialect'"),
         ("init = [1, 2, 3]", "'init'"),
@@ -111,11 +114,27 @@ def test_config_values_and_overrides(tmp_path: Path) -> None:
     assert (args.video, args.mavlink, args.follow, args.hp) == (
         "/dev/video0",
         "/dev/ttyAMA0,921600",
-        True,
+        "vehicle",
         {"lr": "0.4"},
     )
     assert args.allow_sysid == {254, 255} and args.max_speed == 2.0 and args.component == 102
     assert args.tracking_rate == 10.0 and args.sysid is None
+    assert args.follow == "vehicle" and args.realtime is True and args.loop is False  # follow = true: the vehicle
+    config.write_text('allow_sysid = "any"\nfollow = "gimbal"\nrealtime = false\nloop = true\ngimbal-rate = 30\n')
+    args = parse_args(parser, ["--config", str(config), "--stream-url", "rtsp://10.0.0.2:8554/cam"])
+    assert (args.allow_sysid, args.follow, args.realtime, args.loop, args.gimbal_rate) == (
+        None,
+        "gimbal",
+        False,
+        True,
+        30,
+    )
+    assert args.stream_url == "rtsp://10.0.0.2:8554/cam"
+    fresh = runtime_cli.build_parser()
+    args = parse_args(fresh, ["--mavlink", "udpin:0.0.0.0:14560", "--follow", "--video", "0", "--no-realtime"])
+    assert (args.follow, args.realtime, args.allow_sysid) == ("vehicle", False, {255, 245})
+    assert parse_args(fresh, ["--follow", "gimbal", "--allow-sysid", "any"]).allow_sysid is None
+    assert parse_args(fresh, []).follow is None
 
 
 def test_bad_inputs_exit_2(media: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -189,3 +208,55 @@ def test_sigterm_stops_cleanly(media: dict[str, Path], tmp_path: Path) -> None:
             proc.wait(5)
     reader.join(5)
     assert any(b"service stopped" in line for line in lines), lines
+
+
+def test_rehearse_a_recorded_flight_with_a_ground_station(media: dict[str, Path]) -> None:
+    """A recorded clip (25 FPS, 40 frames) in service mode plays at its own pace and `--loop` replays it, so a
+    ground station has time to draw a box; udpout without --sysid: the camera speaks first as system 1."""
+    port = free_port()
+    gcs = GroundStation(f"udpin:127.0.0.1:{port}").start()
+    argv = ["--video", str(media["video"]), "--model", str(media["model"]), "--threads", "1",
+            "--mavlink", f"udpout:127.0.0.1:{port}", "--loop", "--max-frames", "60"]  # fmt: skip
+    result: list[int] = []
+    start = time.monotonic()
+    runner = threading.Thread(target=lambda: result.append(cli.main(argv)), daemon=True)
+    try:
+        runner.start()
+        beat = gcs.wait_for("HEARTBEAT", 10, where=lambda m: m.get_srcComponent() == 100)
+        assert beat is not None and beat.get_srcSystem() == 1
+        assert wait_until(lambda: bool(gcs.received("CAMERA_TRACKING_IMAGE_STATUS")), 5)  # frames flow
+        reply = gcs.call(mavlink.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0.3, 0.3, 0.5, 0.5, target=(1, 100))
+        assert reply is not None and reply.result == mavlink.MAV_RESULT_ACCEPTED
+        active = gcs.wait_for("CAMERA_TRACKING_IMAGE_STATUS", 3, where=lambda m: m.tracking_status == 1)
+        assert active is not None
+        runner.join(20)
+    finally:
+        gcs.close()
+    elapsed = time.monotonic() - start
+    assert result == [0] and elapsed >= 60 / 25 - 0.2  # 60 frames at 25 FPS, not as fast as they decode
+
+
+def test_options_reach_the_service_settings() -> None:
+    import math
+
+    from dadiff.drone.camera import DEFAULT_ALLOWED
+    from dadiff.drone.config import parse_args
+    from dadiff.runtime import cli as runtime_cli
+
+    assert cli.ALLOWED_DEFAULT == DEFAULT_ALLOWED == {255, 245}  # the parser's copy (no pymavlink at parse time)
+    base = ["--video", "0", "--mavlink", "udpout:127.0.0.1:14550"]
+    extra = ["--follow", "gimbal", "--gimbal-rate", "40", "--max-gimbal-rate", "30"]
+    extra += ["--stream-url", "rtsp://10.0.0.2/cam", "--no-realtime", "--loop"]
+    args = parse_args(runtime_cli.build_parser(), [*base, *extra])
+    s = cli._settings(args, b"k" * 32)
+    assert s.follow is None and s.gimbal is not None and s.gimbal.rate_hz == 40
+    assert s.gimbal.max_rate == pytest.approx(math.radians(30))
+    assert (s.realtime, s.loop, s.link.sysid) == (False, True, None)
+    assert (s.camera.stream_url, s.camera.trust_signed, s.camera.allowed_sysids) == (
+        "rtsp://10.0.0.2/cam",
+        True,
+        {255, 245},
+    )
+    s = cli._settings(parse_args(runtime_cli.build_parser(), [*base, "--follow", "--allow-sysid", "any"]), None)
+    assert s.follow is not None and s.gimbal is None and s.camera.allowed_sysids is None and s.realtime
+    assert not s.camera.trust_signed

@@ -114,11 +114,82 @@ def test_uncertain_holds_with_slew_then_resumes() -> None:
     for k in range(1, 20):
         sp = run(f, k / 15, ardupilot(k / 15), det((600, 220, 40, 40), stamp=k / 15))
     assert sp is not None and sp.velocity.yaw_rate > 0.5
-    held = run(f, 20 / 15, ardupilot(20 / 15), det((600, 220, 40, 40), "uncertain", stamp=20 / 15))
+    # one uncertain result is not enough (hysteresis); a sustained one is
+    k = 20
+    assert run(f, k / 15, ardupilot(k / 15), det((600, 220, 40, 40), "uncertain", stamp=k / 15)) is not None
+    assert f.state == follow.FOLLOW
+    while f.state == follow.FOLLOW and k < 40:
+        k += 1
+        held = run(f, k / 15, ardupilot(k / 15), det((600, 220, 40, 40), "uncertain", stamp=k / 15))
     assert f.state == follow.HOLD and held is not None
+    assert 20 / 15 + 0.25 < k / 15 < 20 / 15 + 0.5  # trust_tau 0.3 s: lost after ~0.36 s of 'uncertain'
     assert 0 < held.velocity.yaw_rate < sp.velocity.yaw_rate  # slewing down, not a jump
-    back = run(f, 21 / 15, ardupilot(21 / 15), det((600, 220, 40, 40), stamp=21 / 15))
-    assert f.state == follow.FOLLOW and back is not None
+    start = k
+    while f.state == follow.HOLD and k < start + 20:
+        k += 1
+        back = run(f, k / 15, ardupilot(k / 15), det((600, 220, 40, 40), stamp=k / 15))
+    assert f.state == follow.FOLLOW and back is not None and 0.25 < (k - start) / 15 < 0.5
+
+
+def test_trust_hysteresis_on_a_flickering_state() -> None:
+    """A score hovering around the tracker's threshold flips tracking/uncertain at frame rate: the level stays
+    in the band between trust_off and trust_on and the controller's state does not flip."""
+    trust = follow.Trust(0.3, 0.7, 0.3)
+    assert trust.update(1, "tracking", 0.0)
+    for k in range(1, 300):  # 10 s at 30 FPS, every other frame uncertain
+        trust.update(1, "tracking" if k % 2 else "uncertain", k / 30)
+        assert 0.3 < trust.level < 0.7 or k < 30
+    assert trust.trusted and trust.flips == 0
+    assert trust.update(1, "uncertain", 10.0) is True  # same pace, still in the band
+    for k in range(1, 15):
+        trust.update(1, "uncertain", 10.0 + k / 30)
+    assert not trust.trusted and trust.flips == 1
+    assert trust.update(2, "tracking", 11.0) and trust.level == 1.0  # a new target starts trusted
+    assert not follow.Trust().update(3, "uncertain", 0.0)  # ... unless it starts uncertain
+
+    f = Follower(CFG)
+    states = []
+    for k in range(150):  # 5 s at 30 FPS, periodic steps at 15 Hz in between
+        t = k / 30
+        d = det((500, 220, 40, 40), "tracking" if k % 2 == 0 else "uncertain", stamp=t)
+        run(f, t, ardupilot(t), d, periodic=False)
+        run(f, t + 0.001, ardupilot(t), d, periodic=k % 2 == 0)
+        states.append(f.state)
+    changes = sum(1 for a, b in zip(states, states[1:], strict=False) if a != b)
+    assert changes == 0 and states[-1] == follow.FOLLOW
+
+
+def test_px4_stream_never_pauses_while_armed_with_a_target() -> None:
+    """PX4 in OFFBOARD fails safe when setpoints pause: zeros whenever the detection is not trusted, lost or
+    stale, and on every periodic step, whatever the tracker does."""
+    f = Follower(CFG)
+    period = 1 / CFG.rate_hz
+    sent: list[tuple[float, Velocity]] = []
+    script = ["tracking"] * 30 + ["uncertain", "tracking"] * 20 + ["lost"] * 30 + ["tracking"] * 30
+    script += ["uncertain"] * 30 + ["lost", "uncertain"] * 15 + ["tracking"] * 20
+    t = 0.0
+    for k, state in enumerate(script):  # a result every 1/30 s, periodic steps at 15 Hz
+        t = k / 30
+        stamp = t - 0.5 if k % 37 == 36 else t  # now and then a stale result
+        d = det((500, 220, 40, 40), state, stamp=stamp)
+        out = run(f, t, px4(t), d, periodic=False)
+        if out is not None:
+            sent.append((t, out.velocity))
+        if k % 2 == 0:
+            out = run(f, t + 0.001, px4(t), d)
+            assert out is not None, (k, state, f.state, f.reason)
+            sent.append((t + 0.001, out.velocity))
+    gaps = [b[0] - a[0] for a, b in zip(sent, sent[1:], strict=False)]
+    assert max(gaps) <= period + 0.01  # >= 15 Hz, never a pause
+    assert any(v.yaw_rate > 0 for _, v in sent)  # it did follow (after the prestream second)
+    first_lost = 30 + 40
+    assert all(v.is_zero for t_, v in sent if first_lost / 30 <= t_ < (first_lost + 30) / 30)  # lost: zeros at once
+    # the pilot leaves OFFBOARD: zeros go on (so that OFFBOARD can be selected again); stop: zeros then nothing
+    assert run(f, t + 0.1, px4(t + 0.1, mode=PX4_POSCTL), det(stamp=t + 0.1)).velocity == ZERO
+    assert f.state == follow.PRESTREAM
+    stops = [run(f, t + 0.2 + k * period, px4(t + 0.2), det(state="idle", stamp=t + 0.2)) for k in range(5)]
+    assert [s.velocity if s else None for s in stops] == [ZERO] * CFG.stop_repeats + [None] * (5 - CFG.stop_repeats)
+    assert f.state == follow.OFF
 
 
 @pytest.mark.parametrize("cause", ["lost", "idle", "stale", "heartbeat"])

@@ -66,7 +66,7 @@ def test_camera_protocol() -> None:
             assert r.msg.tracking_status == mavlink.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
             assert r.msg.tracking_mode == mavlink.CAMERA_TRACKING_MODE_RECTANGLE
             assert any(rect_of(r.msg) == pytest.approx(b, abs=1e-6) for b in boxes)  # the tracker's box, exactly
-            assert math.isnan(r.msg.point_x) and math.isnan(r.msg.radius)
+            assert all(math.isfinite(v) for v in (r.msg.point_x, r.msg.point_y, r.msg.radius))  # QGC-safe
 
         tracker.state = "uncertain"
         coasting = mavlink.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE | mavlink.CAMERA_TRACKING_STATUS_FLAGS_COASTING
@@ -103,10 +103,13 @@ def test_commands_before_the_first_frame_and_from_strangers() -> None:
         assert wait_until(lambda: rig.service.feed.frame_size is not None, 3)
         assert rig.gcs.call(RECT, 0.1, 0.1, 0.3, 0.3).result == ACCEPTED
         stranger = GroundStation(f"udpout:127.0.0.1:{rig.port}", sysid=200).start()
+        mavsdk = GroundStation(f"udpout:127.0.0.1:{rig.port}", sysid=245).start()  # MAVSDK's default id
         try:
-            assert stranger.call(RECT, 0.1, 0.1, 0.3, 0.3, timeout=1.0) is None  # silently ignored
+            assert stranger.call(RECT, 0.1, 0.1, 0.3, 0.3).result == DENIED  # refused, but never silence
+            assert mavsdk.call(RECT, 0.1, 0.1, 0.3, 0.3).result == ACCEPTED
         finally:
             stranger.close()
+            mavsdk.close()
         assert rig.service.camera.ignored >= 1
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -73,16 +74,25 @@ def test_signed_commands_only() -> None:
         for key in (None, hashlib.sha256(b"wrong").digest()):
             intruder = GroundStation(f"udpout:127.0.0.1:{rig.port}", key=key).start()
             try:
-                assert intruder.call(RECT, 0.1, 0.1, 0.3, 0.3, timeout=1.0) is None
+                assert intruder.call(RECT, 0.1, 0.1, 0.3, 0.3, timeout=1.0) is None  # dropped by the link
             finally:
                 intruder.close()
         assert rig.tracker.inits == []
         assert rig.gcs.call(RECT, 0.1, 0.1, 0.3, 0.3).result == mavlink.MAV_RESULT_ACCEPTED
         assert rig.service.link.policy is not None
+        # with signing on, every correctly signed sender may command, whatever its system id
+        signed = GroundStation(f"udpout:127.0.0.1:{rig.port}", sysid=77, key=KEY).start()
+        try:
+            assert signed.call(RECT, 0.1, 0.1, 0.3, 0.3).result == mavlink.MAV_RESULT_ACCEPTED
+        finally:
+            signed.close()
 
 
 def test_unsigned_autopilot_is_not_trusted() -> None:
-    """With signing on, an unsigned autopilot heartbeat neither gives the system id nor arms the follower."""
+    """With signing on, an unsigned autopilot heartbeat neither gives the system id nor arms the follower
+    (the camera speaks first, signed, as system 1)."""
     with Rig(key=KEY, ap_key=b"") as rig:
-        assert rig.gcs.wait_for("HEARTBEAT", 1.5, where=lambda m: m.get_srcComponent() == 100) is None
-        assert rig.service.link.sysid is None
+        beat = rig.gcs.wait_for("HEARTBEAT", 1.5, where=lambda m: m.get_srcComponent() == 100)
+        assert beat is not None and beat.get_signed() and beat.get_srcSystem() == 1
+        time.sleep(0.3)
+        assert not rig.service.link.learned and rig.service.loop.autopilot is None
