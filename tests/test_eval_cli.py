@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from dadiff.runtime.evaluation.cli import main
-from dadiff.runtime.evaluation.evaluate import EvalError, OpenCVTracker, opencv_available, read_result
+from dadiff.runtime.evaluation.evaluate import (
+    DEFAULT_NANO_DIR,
+    EvalError,
+    OpenCVTracker,
+    nano_available,
+    opencv_available,
+    read_result,
+)
 
 pytest.importorskip("skimage")  # the scene photos
 
@@ -105,6 +112,29 @@ def test_missing_contrib_is_a_clear_error(monkeypatch):
     monkeypatch.delattr(cv2, "TrackerCSRT", raising=False)
     with pytest.raises(EvalError, match="needs OpenCV's contrib modules"):
         OpenCVTracker("csrt")
+
+
+def test_nano_baseline(bench, tmp_path, capsys):
+    if not nano_available():
+        pytest.skip(f"NanoTrack v2 weights not found in {DEFAULT_NANO_DIR} (or cv2.TrackerNano missing)")
+    assert main(["run", "--tracker", "nano", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress",
+                 "--no-plots"]) == 0
+    assert "NANO: tracked 4 sequences" in capsys.readouterr().out
+    boxes = read_result(tmp_path / "bench" / "NANO" / "seq001_night.txt")
+    assert boxes.shape == (4, 4) and np.all(boxes[:, 2:] > 0)
+
+
+def test_nano_without_weights_is_one_line_exit_2(bench, tmp_path, capsys):
+    empty = tmp_path / "no-weights"
+    empty.mkdir()
+    args = ["run", "--tracker", "nano", "--nano-dir", str(empty), "--dataset", str(bench), "--results",
+            str(tmp_path), "--no-progress"]
+    assert main(args) == 2
+    line = _one_error_line(capsys)
+    assert "nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx" in line and str(empty) in line
+    assert main(["run", "--tracker", "csrt", "--nano-dir", str(empty), "--dataset", str(bench), "--results",
+                 str(tmp_path), "--no-progress"]) == 1
+    assert "--nano-dir does not apply" in _one_error_line(capsys)
 
 
 def _one_error_line(capsys) -> str:

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import copy
+import hashlib
+import json
 import subprocess
 import sys
+import types
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -13,10 +18,14 @@ from dadiff.runtime.evaluation import scenes
 from dadiff.runtime.evaluation.datasets import load_dataset
 from dadiff.runtime.evaluation.scenes import (
     PHOTO_SPLITS,
+    RealNight,
     Scene,
     SceneError,
+    SceneNight,
     load_photos,
     make_sequence,
+    motion_blur,
+    random_library_scene,
     render_night,
     visible_box,
     write_benchmark,
@@ -134,3 +143,289 @@ def test_write_benchmark_is_read_back_as_an_otb_dataset(tmp_path):
     assert (root / "seq001_day" / "img" / "0003.jpg").is_file()
     with pytest.raises(SceneError, match="not an empty folder"):
         write_benchmark(root, sequences=1, frames=1, seed=5)
+
+
+# ---------------------------------------------------------------------------------- seeded benchmark
+
+# Recorded from the generator before the "real" night style and the library source existed: the seeded
+# benchmark in README (`dadiff-eval generate --seed 2026`) must stay reproducible bit for bit.
+SEED_2026_FRAME_2 = {
+    "day": "f59bf1c06616ed618452e52ef85cdbd953ccc4cd08393c15e69228cc9b6c5ef9",
+    "night": "eab4bfe0f347f5a3d4fe80c2d40ec4d77ae99ecf4a70daeea8358f1189957967",
+    "boxes": "c3d564b7289d639c82f95fcf754417f244941d0631cf4f54734bade0e62e8b64",
+}
+
+
+def _sha(array: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(array).tobytes()).hexdigest()
+
+
+def test_seeded_sequences_are_unchanged_by_default():
+    seq = make_sequence(2026, frames=3)
+    got = {"day": _sha(seq.day[2]), "night": _sha(seq.night[2]), "boxes": _sha(seq.boxes)}
+    assert got == SEED_2026_FRAME_2
+    same = make_sequence(2026, frames=3, source="skimage", night="classic")
+    assert _sha(same.night[2]) == SEED_2026_FRAME_2["night"]
+    real = make_sequence(2026, frames=3, night="real")
+    assert _sha(real.day[2]) == SEED_2026_FRAME_2["day"] and np.array_equal(real.boxes, seq.boxes)
+    assert _sha(real.night[2]) != SEED_2026_FRAME_2["night"]
+
+
+def test_classic_render_night_is_the_old_one():
+    day = make_sequence(2026, frames=1).day[0]
+    night = render_night(day, np.random.default_rng(1), darkness=0.8, style="classic")
+    assert _sha(night) == "343e3ee18753c8575faacbe08d2a8bb03d850179b5181fef717bf0618ab481d1"
+
+
+def test_night_style_and_source_are_checked():
+    day, _ = Scene.random(np.random.default_rng(3), load_photos("test"), size=SMALL, frames=1).render(0)
+    with pytest.raises(SceneError, match="unknown night style 'noir'"):
+        render_night(day, np.random.default_rng(1), style="noir")
+    with pytest.raises(SceneError, match="unknown night style"):
+        make_sequence(1, frames=1, size=SMALL, night="noir")
+    with pytest.raises(SceneError, match="unknown scene source 'web'"):
+        make_sequence(1, frames=1, size=SMALL, source="web")
+    with pytest.raises(SceneError, match="darkness"):
+        RealNight.random(np.random.default_rng(0), darkness=-0.1)
+
+
+# ------------------------------------------------------------------------------------- real night
+
+
+def test_real_night_is_dark_deterministic_and_jpeg_blocked():
+    day, _ = Scene.random(np.random.default_rng(3), load_photos("test"), size=(320, 240), frames=1).render(0)
+    night = render_night(day, np.random.default_rng(1))  # the default style is "real"
+    assert night.shape == day.shape and night.dtype == np.uint8
+    assert np.array_equal(night, render_night(day, np.random.default_rng(1)))
+    assert night.mean() < 0.5 * day.mean()
+    odd = render_night(day[:101, :77].copy(), np.random.default_rng(2))  # any frame size
+    assert odd.shape == (101, 77, 3)
+
+
+def test_real_night_sequence_lights_stay_on_the_ground_and_exposure_is_locked():
+    seq = make_sequence(4, frames=4, size=(320, 240), night="real")
+    assert len(seq.night) == 4 and all(f.shape == (240, 320, 3) for f in seq.night)
+    again = make_sequence(4, frames=4, size=(320, 240), night="real")
+    assert all(np.array_equal(a, b) for a, b in zip(seq.night, again.night, strict=True))
+    means = [f.mean() for f in seq.night]
+    assert max(means) < 1.5 * min(means) + 2  # no flicker between frames
+
+
+def test_motion_blur_spreads_a_point_along_the_motion():
+    image = np.zeros((64, 64, 3), np.float32)
+    image[32, 32] = 1
+    for dx, dy in ((6.0, 0.0), (0.0, 23.0), (15.0, 15.0)):
+        out = motion_blur(image, dx, dy)[..., 0]
+        assert out.sum() == pytest.approx(1, abs=1e-3)
+        ys, xs = np.nonzero(out > 1e-4)
+        assert np.ptp(xs) == pytest.approx(abs(dx), abs=2.5) and np.ptp(ys) == pytest.approx(abs(dy), abs=2.5)
+    assert motion_blur(image, 0.3, 0.2) is image
+
+
+# ---------------------------------------------------------------------------------- library scenes
+
+
+@dataclass
+class FakeImage:
+    """A library image (the API of runtime/evaluation/library.py's LibraryImage) that records its loads."""
+
+    package: str
+    source: str
+    pixels: np.ndarray = field(repr=False)
+    loads: list = field(repr=False, default_factory=list)
+
+    @property
+    def width(self) -> int:
+        return self.pixels.shape[1]
+
+    @property
+    def height(self) -> int:
+        return self.pixels.shape[0]
+
+    def load(self) -> np.ndarray:
+        self.loads.append(self.source)
+        return self.pixels.copy()
+
+
+def _cutout(photo: np.ndarray, k: int) -> np.ndarray:
+    """A person-like BGRA cut-out (head, body, two legs; soft edge) textured from a photo, in a loose canvas."""
+    h, w = 260, 130
+    y, x = (k * 37) % (photo.shape[0] - h), (k * 53) % (photo.shape[1] - w)
+    alpha = np.zeros((h, w), np.uint8)
+    cv2.ellipse(alpha, (65, 40), (18, 22), 0, 0, 360, 255, -1)
+    cv2.ellipse(alpha, (65, 120), (35, 60), 0, 0, 360, 255, -1)
+    cv2.rectangle(alpha, (45, 160), (60, 242), 255, -1)
+    cv2.rectangle(alpha, (72, 160), (87, 242), 255, -1)
+    alpha = cv2.GaussianBlur(alpha, (0, 0), 1.0)
+    return np.dstack([photo[y : y + h, x : x + w], alpha])
+
+
+class FakeLibrary:
+    """Backgrounds: the split's scikit-image photos; targets: person-like cut-outs from them."""
+
+    def __init__(self) -> None:
+        self.content = {}
+        for split in ("train", "test"):
+            photos = sorted(load_photos(split).items())
+            self.content["background", split] = [FakeImage("fake", f"{split}/{n}", p) for n, p in photos]
+            cuts = [_cutout(p, k) for k, (_, p) in enumerate(photos) if min(p.shape[:2]) > 270]
+            self.content["target", split] = [FakeImage("fake", f"{split}/cut{k}", c) for k, c in enumerate(cuts)]
+
+    def images(self, role: str, split: str) -> list[FakeImage]:
+        return list(self.content[role, split])
+
+    def loaded(self) -> set[str]:
+        return {s for images in self.content.values() for image in images for s in image.loads}
+
+
+@pytest.fixture(scope="module")
+def library() -> FakeLibrary:
+    return FakeLibrary()
+
+
+def _plain(scene: Scene, i: int) -> np.ndarray:
+    width, height = scene.size
+    return cv2.warpAffine(
+        scene.background, scene.cameras[i], (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101
+    )
+
+
+def test_library_target_is_pasted_with_its_alpha_and_the_box_is_tight(library):
+    checked = 0
+    for seed in range(60):
+        scene = random_library_scene(np.random.default_rng(seed), library, "test", frames=30, size=(320, 240))
+        if scene.distractor is not None or scene.occluder is not None or scene.brightness.max() != 1:
+            continue
+        # The same layer drawing its own alpha (premultiplied white) onto black: the alpha as drawn.
+        alpha_only = copy.copy(scene.target)
+        alpha_only.pyramid = [np.dstack([level[..., 3]] * 4) for level in scene.target.pyramid]
+        for i in (0, 29):
+            frame, box = scene.render(i)
+            truth = np.array([box[0], box[1], box[0] + box[2], box[1] + box[3]])
+            alpha = np.zeros_like(frame)
+            alpha_only.draw(alpha, i)
+            ys, xs = np.nonzero(alpha[..., 0] > 127)
+            opaque = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], float)
+            assert np.all(np.abs(opaque - truth) <= 1.0), (seed, i, opaque, truth)
+            changed = np.abs(frame.astype(int) - _plain(scene, i).astype(int)).max(axis=2) > 3
+            ys, xs = np.nonzero(changed)
+            drawn = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], float)
+            assert np.all(np.abs(drawn - truth) <= 2.5), (seed, i, drawn, truth)  # plus the soft edge
+            # Not a blob: the legs of the cut-out leave a gap of background between them at the bottom.
+            if box[3] > 60:
+                row = int(box[1] + 0.93 * box[3])
+                span = changed[row, int(box[0]) : int(box[0] + box[2]) + 1]
+                inside = np.flatnonzero(span)
+                assert len(inside) and not span[inside[0] : inside[-1] + 1].all(), (seed, i)
+        checked += 1
+        if checked == 4:
+            break
+    assert checked == 4
+
+
+def test_library_box_leaves_out_the_occluded_part(library):
+    deviations = []
+    for seed in range(40):
+        scene = random_library_scene(np.random.default_rng(seed), library, "test", frames=40, size=(320, 240))
+        if scene.occluder is None:
+            continue
+        alpha_only = copy.copy(scene.target)
+        alpha_only.pyramid = [np.dstack([level[..., 3]] * 4) for level in scene.target.pyramid]
+        for i in np.flatnonzero(scene.occluder.active):
+            box = scene.boxes[i]
+            alpha = np.zeros((240, 320, 3), np.uint8)
+            alpha_only.draw(alpha, i)
+            hidden = np.zeros((240 * 4, 320 * 4), np.uint8)
+            cv2.fillPoly(hidden, [np.rint(scene.occluder.outline(i) * 4 - 0.5).astype(np.int32)], 255)
+            hidden = cv2.resize(hidden, (320, 240), interpolation=cv2.INTER_AREA) > 127
+            ys, xs = np.nonzero((alpha[..., 0] > 127) & ~hidden)
+            if len(xs) == 0 or np.isnan(box).any():
+                continue
+            seen = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], float)
+            truth = np.array([box[0], box[1], box[0] + box[2], box[1] + box[3]])
+            assert np.all(seen[:2] >= truth[:2] - 1) and np.all(seen[2:] <= truth[2:] + 1), (seed, i, seen, truth)
+            deviations.append(np.abs(seen - truth).max())
+    # Tight around what shows, but for slivers (about a pixel thick) that pixel centres do not catch.
+    assert len(deviations) > 50 and np.mean(np.array(deviations) <= 1.5) >= 0.9
+
+
+def test_library_scenes_change_scale_strongly_and_mix_object_sizes(library):
+    ratios, sides = [], []
+    for seed in range(24):
+        scene = random_library_scene(np.random.default_rng(seed), library, "train", frames=150)
+        root = np.sqrt(scene.target.size)
+        ratios.append(float(scene.target.size.max() / scene.target.size.min()))
+        sides.append(float(np.nanmax(scene.boxes[0, 2:])))
+        assert np.isfinite(scene.boxes).all() or scene.occluder is not None
+        assert root.min() > 0
+    assert sum(r >= 2 for r in ratios) >= 5
+    assert any(s < 40 for s in sides) and any(s >= 40 for s in sides)
+    assert max(sides) <= 360
+
+
+def test_library_scenes_keep_train_and_test_apart(monkeypatch):
+    for split in ("train", "test"):
+        monkeypatch.setattr(scenes, "_LIBRARY_CACHE", {})  # nothing loaded by another test
+        fresh = FakeLibrary()
+        for seed in range(6):
+            random_library_scene(np.random.default_rng(seed), fresh, split, frames=5, size=SMALL)
+        loaded = fresh.loaded()
+        assert loaded and all(source.startswith(f"{split}/") for source in loaded), loaded
+
+
+def test_library_source_needs_a_fetched_library(monkeypatch):
+    module = types.ModuleType("dadiff.runtime.evaluation.library")
+    module.open_library = lambda: None
+    module.LibraryError = type("LibraryError", (Exception,), {})
+    monkeypatch.setitem(sys.modules, "dadiff.runtime.evaluation.library", module)
+    with pytest.raises(SceneError, match="run dadiff-eval data fetch first"):
+        make_sequence(1, frames=1, size=SMALL, source="library")
+
+
+def test_library_benchmark_defaults_to_the_real_night(tmp_path, library):
+    root = write_benchmark(
+        tmp_path / "lib", sequences=1, frames=3, seed=2, size=SMALL, workers=1, source="library", library=library
+    )
+    info = json.loads((root / "benchmark.json").read_text())
+    assert (info["source"], info["night"], info["split"]) == ("library", "real", "test")
+    dataset = load_dataset(root)
+    assert [s.name for s in dataset.sequences] == ["seq001_day", "seq001_night"]
+    seq = make_sequence(2, frames=3, size=SMALL, source="library", library=library)
+    assert np.allclose(seq.boxes, dataset.sequences[0].boxes, atol=1e-3)
+    assert (
+        make_sequence(2, frames=3, size=SMALL, source="library", night="classic", library=library).night[0].mean() > 0
+    )
+    classic = json.loads(
+        (write_benchmark(tmp_path / "classic", 1, 1, 2, size=SMALL, workers=1) / "benchmark.json").read_text()
+    )
+    assert (classic["source"], classic["night"]) == ("skimage", "classic")
+
+
+def test_generate_cli_writes_source_and_night(tmp_path, monkeypatch, capsys):
+    from dadiff.runtime.evaluation.cli import main
+
+    args = ["generate", "--sequences", "1", "--frames", "2", "--size", "192x128", "--workers", "1"]
+    assert main([*args, "--out", str(tmp_path / "real"), "--night", "real"]) == 0
+    info = json.loads((tmp_path / "real" / "benchmark.json").read_text())
+    assert (info["source"], info["night"]) == ("skimage", "real")
+    assert "skimage pictures, real night" in capsys.readouterr().out
+    module = types.ModuleType("dadiff.runtime.evaluation.library")
+    module.open_library = lambda: None
+    module.LibraryError = type("LibraryError", (Exception,), {})
+    monkeypatch.setitem(sys.modules, "dadiff.runtime.evaluation.library", module)
+    assert main([*args, "--out", str(tmp_path / "lib"), "--source", "library"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "run dadiff-eval data fetch first" in err[0]
+    assert not (tmp_path / "lib").exists()
+
+
+def test_scene_night_gives_training_a_consistent_night(library):
+    rng = np.random.default_rng(0)
+    scene = random_library_scene(rng, library, "train", frames=20, size=SMALL)
+    night = SceneNight(scene, rng)  # style "real": one camera and one set of street lights for the scene
+    template, search = (night(scene.render(i)[0], i, np.random.default_rng(i)) for i in (2, 15))
+    assert template.shape == search.shape == (SMALL[1], SMALL[0], 3)
+    assert np.array_equal(template, night(scene.render(2)[0], 2, np.random.default_rng(2)))
+    assert SceneNight(scene, rng, style="classic")(scene.render(0)[0], 0, rng).shape == template.shape
+    with pytest.raises(SceneError, match="unknown night style"):
+        SceneNight(scene, rng, style="noir")

@@ -1,9 +1,11 @@
 """dadiff-eval: one-pass evaluation (run, score) and the night-scene benchmark generator (generate).
 
 dadiff-eval run --model M --dataset D --results R [--attributes]
-dadiff-eval run --tracker csrt --dataset D --results R
+dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R
 dadiff-eval score --dataset D [--json] RESULT_DIR...
-dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026
+dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
+dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
+dadiff-eval data list [--cache DIR]
 """
 
 from __future__ import annotations
@@ -12,15 +14,26 @@ import argparse
 import json
 import sys
 import time
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
 from ..cli import positive_int
 from ..errors import InputError, ModelError
 from .datasets import Dataset, DatasetError, load_dataset
-from .evaluate import EvalError, OpenCVTracker, RuntimeTracker, TrackerScores, result_folders, run_tracker, score_folder
+from .evaluate import (
+    EvalError,
+    OpenCVTracker,
+    RuntimeTracker,
+    TrackerScores,
+    TrackerUnavailable,
+    result_folders,
+    run_tracker,
+    score_folder,
+)
+from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
 from .plots import write_plots
-from .scenes import PHOTO_SPLITS, SceneError, write_benchmark
+from .scenes import NIGHT_STYLES, PHOTO_SPLITS, SOURCES, SceneError, write_benchmark
 
 PROG = "dadiff-eval"
 NOTE = (
@@ -39,7 +52,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description="One-pass evaluation of single-object trackers.")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate,data}")
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -50,8 +63,12 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", parents=[common], help="run a tracker over a dataset, then score and plot")
     run.add_argument("--results", required=True, type=Path, help="results root: <results>/<dataset>/<tracker>/")
     run.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
-    run.add_argument("--tracker", choices=("dadiff", "csrt", "kcf"), default="dadiff", help="tracker to run")
-    run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF)")
+    run.add_argument("--tracker", choices=("dadiff", "csrt", "kcf", "nano"), default="dadiff",
+                     help="tracker to run (nano: OpenCV's TrackerNano with NanoTrack v2 weights)")
+    run.add_argument("--nano-dir", type=Path, metavar="DIR",
+                     help="folder of nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx "
+                          "(default: ../shared/weights/nanotrack/v2 beside the checkout)")
+    run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO)")
     run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
     run.add_argument("--threads", type=positive_int, help="onnxruntime threads")
     run.add_argument("--compare", nargs="+", type=Path, default=[], metavar="DIR", help="more result folders")
@@ -74,7 +91,41 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--split", choices=tuple(PHOTO_SPLITS), default="test", help="photo split (default: test)")
     gen.add_argument("--size", type=_size, default=(640, 360), metavar="WxH", help="frame size (default 640x360)")
     gen.add_argument("--workers", type=positive_int, help="processes (default: one per core)")
+    gen.add_argument(
+        "--source",
+        choices=SOURCES,
+        default="skimage",
+        help="pictures: skimage (blobs over scikit-image photos, default) or library (real cut-outs over aerial "
+        "backgrounds and photos; needs dadiff-eval data fetch)",
+    )
+    gen.add_argument(
+        "--night",
+        choices=NIGHT_STYLES,
+        help="night look: classic (the seed-2026 benchmark's) or real (as measured on real night drone video); "
+        "default: classic for skimage, real for library",
+    )
+    _add_data_parser(sub)
     return parser
+
+
+def _add_data_parser(sub: argparse._SubParsersAction) -> None:
+    """`data fetch`, `data list` and `data pack`."""
+    data = sub.add_parser("data", help="the real-photo scene library (Debian packages, cached outside git)")
+    actions = data.add_subparsers(dest="action", required=True, metavar="{fetch,list,pack}")
+    cache = argparse.ArgumentParser(add_help=False)
+    where = "library folder (default: $DADIFF_DATA_DIR, else ~/.cache/dadiff/library)"
+    cache.add_argument("--cache", type=Path, metavar="DIR", help=where)
+    get = actions.add_parser("fetch", parents=[cache], help="download, unpack and index packages (incremental)")
+    get.add_argument("--packages", nargs="+", metavar="NAME",
+                     help=f"Debian packages (default: {' '.join(DEFAULT_PACKAGES)})")
+    get.add_argument("--deb", type=Path, metavar="DIR", help="take .deb files from this folder instead of apt-get")
+    actions.add_parser("list", parents=[cache], help="images per package, role and split, and licences")
+    pack = actions.add_parser("pack", parents=[cache],
+                              help="a small copy of the library (e.g. to train on a lent GPU machine)")
+    pack.add_argument("--out", type=Path, required=True, metavar="DIR", help="new or empty folder for the pack")
+    pack.add_argument("--max-mib", type=float, default=40.0, help="size budget in MiB (default: %(default)s)")
+    pack.add_argument("--split", choices=("train", "all"), default="train",
+                      help="which images to pack (default: %(default)s)")
 
 
 # ---------------------------------------------------------------------------------------------- output
@@ -131,7 +182,11 @@ def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
         for option in ("model", "preset", "threads"):
             if getattr(args, option):
                 raise InputError(f"--{option} does not apply to --tracker {args.tracker}")
-        return OpenCVTracker(args.tracker), args.name or args.tracker.upper()
+        if args.nano_dir and args.tracker != "nano":
+            raise InputError(f"--nano-dir does not apply to --tracker {args.tracker}")
+        return OpenCVTracker(args.tracker, nano_dir=args.nano_dir), args.name or args.tracker.upper()
+    if args.nano_dir:
+        raise InputError("--nano-dir applies to --tracker nano only")
     from dadiff.models import ModelNotFoundError, resolve
 
     from ..tracker import Tracker
@@ -146,7 +201,11 @@ def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
 
 def cmd_run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset).select(args.sequences)
-    tracker, name = _make_tracker(args)
+    try:
+        tracker, name = _make_tracker(args)
+    except TrackerUnavailable as exc:  # this machine lacks a module or weights: exit 2 like other bad input
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
     done = run_tracker(tracker, name, dataset, args.results, progress=not args.no_progress)
     fps = f", {done.fps:.1f} FPS" if done.fps else ""
     print(
@@ -190,20 +249,84 @@ def cmd_score(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     root = write_benchmark(
-        args.out, args.sequences, args.frames, args.seed, args.split, size=args.size, workers=args.workers
+        args.out,
+        args.sequences,
+        args.frames,
+        args.seed,
+        args.split,
+        size=args.size,
+        workers=args.workers,
+        source=args.source,
+        night=args.night,
     )
     took = time.perf_counter() - start
+    night = json.loads((root / "benchmark.json").read_text())["night"]
     print(
         f"wrote {args.sequences} day + {args.sequences} night sequences of {args.frames} frames to {root} "
-        f"in {took:.1f} s"
+        f"({args.source} pictures, {night} night) in {took:.1f} s"
     )
+    return 0
+
+
+def format_library(library: Library) -> str:
+    """One row per package and role: images per split and the licence; then the folder and its size."""
+    counts = Counter((i.package, i.role, i.split) for r in ROLES for s in SPLITS for i in library.images(r, s))
+    rows = [("package", "role", "train", "test", "licence")]
+    for package, licence in library.licences().items():
+        roles = [r for r in ROLES if counts[package, r, "train"] + counts[package, r, "test"]] or ["-"]
+        for role in roles:
+            train, test = (str(counts[package, role, s]) for s in ("train", "test"))
+            rows.append((package, role, train, test, _short_licence(licence)))
+    w = [max(len(r[k]) for r in rows) for k in range(4)]
+    lines = [f"{r[0]:<{w[0]}}  {r[1]:<{w[1]}}  {r[2]:>{w[2]}}  {r[3]:>{w[3]}}  {r[4]}" for r in rows]
+    size = sum(f.stat().st_size for f in library.root.rglob("*") if f.is_file() and not f.is_symlink())
+    lines.append(f"{len(library)} images in {library.root} ({size / 1e6:.0f} MB on disk)")
+    return "\n".join(lines)
+
+
+def _short_licence(licence: str, most: int = 5) -> str:
+    """At most five licence names on a row; index.json keeps them all."""
+    names = licence.split(", ")
+    return licence if len(names) <= most else ", ".join(names[:most]) + f" (+{len(names) - most} more)"
+
+
+def _pack(cache: Path, args: argparse.Namespace) -> int:
+    from .library_pack import pack_library
+
+    library = open_library(cache)
+    if library is None:
+        raise LibraryError(f"no library in {cache}: run `{PROG} data fetch` first")
+    splits = ("train", "test") if args.split == "all" else ("train",)
+    counts = pack_library(library, args.out, int(args.max_mib * 2**20), splits)
+    size = counts.pop("bytes")
+    parts = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+    print(f"{PROG}: packed {parts} into {args.out} ({size / 2**20:.1f} MiB); use it with DADIFF_DATA_DIR={args.out}")
+    return 0
+
+
+def cmd_data(args: argparse.Namespace) -> int:
+    """`data fetch` and `data list`; library errors exit 2 like other bad input."""
+    cache = args.cache or library_root()
+    try:
+        if args.action == "fetch":
+            library = fetch(args.packages, cache, args.deb)
+        elif args.action == "pack":
+            return _pack(cache, args)
+        else:
+            library = open_library(cache)
+            if library is None:
+                raise LibraryError(f"no library in {cache}: run `{PROG} data fetch` first")
+    except LibraryError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_library(library))
     return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "score": cmd_score, "generate": cmd_generate}
+    commands = {"run": cmd_run, "score": cmd_score, "generate": cmd_generate, "data": cmd_data}
     try:
         return commands[args.command](args)
     except (DatasetError, EvalError, SceneError, ModelError, InputError) as exc:

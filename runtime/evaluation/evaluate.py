@@ -13,7 +13,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -60,28 +60,84 @@ class RuntimeTracker:
         return tuple(result.box), float(result.score), str(result.state)
 
 
-OPENCV_TRACKERS = {"csrt": "TrackerCSRT", "kcf": "TrackerKCF"}
+OPENCV_TRACKERS = {"csrt": "TrackerCSRT", "kcf": "TrackerKCF", "nano": "TrackerNano"}
+OPENCV_NAMES = {"csrt": "CSRT", "kcf": "KCF", "nano": "NANO"}
+# NanoTrack v2 as cv2.TrackerNano loads it; not shipped (third-party weights): ../shared/ beside the checkout.
+NANO_FILES = ("nanotrack_backbone_sim.onnx", "nanotrack_head_sim.onnx")
+DEFAULT_NANO_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "weights" / "nanotrack" / "v2"
+
+
+class TrackerUnavailable(EvalError):
+    """A baseline this OpenCV build or this machine cannot run (missing module or weights)."""
 
 
 def opencv_available(kind: str) -> bool:
-    """Whether this OpenCV build has the contrib tracker `kind` ('csrt' or 'kcf')."""
+    """Whether this OpenCV build has the tracker `kind` (csrt, kcf: contrib; nano: the main build)."""
     return hasattr(getattr(cv2, OPENCV_TRACKERS[kind], None), "create")
 
 
-class OpenCVTracker:
-    """OpenCV's CSRT or KCF (opencv-contrib). A failed update keeps the last box and reports 'lost'."""
+def nano_files(folder: Path | None = None) -> tuple[Path, Path]:
+    """(backbone, neck/head) ONNX files of NanoTrack v2 in `folder` (default DEFAULT_NANO_DIR)."""
+    folder = Path(folder).expanduser() if folder is not None else DEFAULT_NANO_DIR
+    paths = tuple(folder / name for name in NANO_FILES)
+    missing = [p.name for p in paths if not p.is_file()]
+    if missing:
+        raise TrackerUnavailable(
+            f"--tracker nano needs NanoTrack v2's {' and '.join(missing)} in {folder} (give --nano-dir DIR)"
+        )
+    return paths  # type: ignore[return-value]
 
-    def __init__(self, kind: str) -> None:
+
+def nano_available(folder: Path | None = None) -> bool:
+    """Whether cv2.TrackerNano and the NanoTrack v2 weights are both here."""
+    try:
+        nano_files(folder)
+    except TrackerUnavailable:
+        return False
+    return opencv_available("nano")
+
+
+def nano_label() -> str:
+    """How reports name the NanoTrack baseline, with the OpenCV version that runs it."""
+    return f"TrackerNano (NanoTrack v2, OpenCV {cv2.__version__})"
+
+
+def _nano_factory(folder: Path | None) -> Callable[[], object]:
+    backbone, head = nano_files(folder)
+
+    def create() -> object:
+        params = cv2.TrackerNano_Params()
+        params.backbone, params.neckhead = str(backbone), str(head)
+        level = cv2.utils.logging.getLogLevel()  # its DNN setup warns about targets on every create
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        try:
+            return cv2.TrackerNano.create(params)
+        finally:
+            cv2.utils.logging.setLogLevel(level)
+
+    return create
+
+
+class OpenCVTracker:
+    """OpenCV's CSRT, KCF (opencv-contrib) or TrackerNano (NanoTrack v2 weights, `nano_dir`).
+
+    The score is the tracker's own where it has one (TrackerNano), else 1; a failed update keeps the last
+    box and reports 'lost'.
+    """
+
+    def __init__(self, kind: str, *, nano_dir: Path | None = None) -> None:
         kind = kind.lower()
         if kind not in OPENCV_TRACKERS:
             raise EvalError(f"unknown OpenCV tracker '{kind}'; expected one of {', '.join(OPENCV_TRACKERS)}")
         if not opencv_available(kind):
-            raise EvalError(
-                f"--tracker {kind} needs OpenCV's contrib modules (cv2.{OPENCV_TRACKERS[kind]} is missing): "
-                f"pip install opencv-contrib-python-headless=={cv2.__version__}.* (or dadiff[baselines])"
+            hint = (f"pip install opencv-contrib-python-headless=={cv2.__version__}.* (or dadiff[baselines])"
+                    if kind != "nano" else "it is in OpenCV >= 4.7")
+            contrib = "OpenCV's contrib modules" if kind != "nano" else "a newer OpenCV"
+            raise TrackerUnavailable(
+                f"--tracker {kind} needs {contrib} (cv2.{OPENCV_TRACKERS[kind]} is missing): {hint}"
             )
         self.kind = kind
-        self._create = getattr(cv2, OPENCV_TRACKERS[kind]).create
+        self._create = _nano_factory(nano_dir) if kind == "nano" else getattr(cv2, OPENCV_TRACKERS[kind]).create
         self._tracker = None
         self._last: Box = (0.0, 0.0, 0.0, 0.0)
 
@@ -96,8 +152,12 @@ class OpenCVTracker:
         ok, rect = self._tracker.update(frame)
         if ok and rect[2] > 0 and rect[3] > 0:
             self._last = tuple(float(v) for v in rect)
-            return self._last, 1.0, "tracking"
+            return self._last, self._score(), "tracking"
         return self._last, 0.0, "lost"
+
+    def _score(self) -> float:
+        score = getattr(self._tracker, "getTrackingScore", None)
+        return float(score()) if score is not None else 1.0
 
 
 # ----------------------------------------------------------------------------------------- result files
