@@ -87,7 +87,7 @@ def detect_family(sd: dict[str, torch.Tensor]) -> str | None:
     if "backbone.layer1.0.conv1.weight" in sd and "diffusion.conv_in.weight" in sd:
         return "dadiff-ban-r50"
     if "backbone._conv_stem.weight" in sd and "diffusion.conv_in.weight" in sd:
-        return "dadiff-lite"
+        return "dadiff-lite" if "backbone._blocks.10._project_conv.weight" in sd else "dadiff-mobile"
     return None
 
 

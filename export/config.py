@@ -5,7 +5,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
-FAMILIES = ("dadiff-ban-r50", "dadiff-lite")
+FAMILIES = ("dadiff-ban-r50", "dadiff-lite", "dadiff-mobile")
+# EfficientNet-Lite0 trunks: the backbone name -> (last block, first dilated block or None, output blocks).
+LITE0_TRUNKS: dict[str, tuple[int, int | None, tuple[int, ...]]] = {
+    "efficientnet-lite0": (10, 5, (7, 10)),      # stride 8 (atrous from block 5), blocks 7 + 10 fused
+    "efficientnet-lite0-s16": (6, None, (6,)),   # stride 16, stops in stage 3 (80 channels)
+}
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
 HP_PRESETS: dict[str, dict[str, float]] = {
@@ -37,7 +42,7 @@ class TrackerConfig:
 @dataclass(frozen=True)
 class ModelConfig:
     family: str
-    backbone: str                      # "resnet50-atrous" | "efficientnet-lite0"
+    backbone: str                      # "resnet50-atrous" | a key of LITE0_TRUNKS
     level_names: tuple[int, ...]       # key suffixes of the neck and head levels
     backbone_channels: tuple[int, ...]  # channels entering the neck, per level
     channels: int                      # neck output width C
@@ -55,6 +60,7 @@ class ModelConfig:
     use_dadiff: bool = True            # False: the baseline tracker, neck features go straight to the head
     align_heads: int = 8
     align_ffn: int = 2048
+    head_search_padding: int = 0       # padding of the head's search-side 3x3 convs (keeps a small map's size)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def to_dict(self) -> dict[str, Any]:
@@ -99,9 +105,31 @@ def lite_config() -> ModelConfig:
     )
 
 
+def mobile_config() -> ModelConfig:
+    """NanoTrack-class cost: Lite0 to block 6 at stride 16, a one-block denoiser, two DDIM steps.
+
+    Template 127 -> 8x8 map, centre 6x6 -> 4x4 head kernel; search 255 -> 16x16 map (padded head convs keep
+    it) -> 13x13 score map, centred on the crop (see docs/model-format.md). 0.47 GFLOP per search frame.
+    """
+    return ModelConfig(
+        family="dadiff-mobile", backbone="efficientnet-lite0-s16", level_names=(0,), backbone_channels=(80,),
+        channels=48, template_feature_size=6, search_feature_size=16, head_hidden=48,
+        denoiser_ch=16, denoiser_res_blocks=1, denoiser_attention=False, denoiser_groups=4,
+        ddim_steps=2, ddim_start_t=None, align="paper", align_heads=4, align_ffn=96, head_search_padding=1,
+        tracker=TrackerConfig(stride=16, score_size=13),
+    )
+
+
+def is_lite0(backbone: str) -> bool:
+    """Whether a backbone is an EfficientNet-Lite0 trunk (ImageNet weights, in-graph normalisation)."""
+    return backbone in LITE0_TRUNKS
+
+
 def default_config(family: str) -> ModelConfig:
     if family == "dadiff-ban-r50":
         return ban_r50_config()
     if family == "dadiff-lite":
         return lite_config()
+    if family == "dadiff-mobile":
+        return mobile_config()
     raise ValueError(f"unknown model family {family!r}; expected one of {', '.join(FAMILIES)}")

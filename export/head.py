@@ -11,8 +11,9 @@ import torch.nn.functional as F
 from torch import nn
 
 
-def conv_bn_relu(in_ch: int, out_ch: int, kernel: int) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(in_ch, out_ch, kernel, bias=False), nn.BatchNorm2d(out_ch), nn.ReLU(inplace=True))
+def conv_bn_relu(in_ch: int, out_ch: int, kernel: int, padding: int = 0) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(in_ch, out_ch, kernel, padding=padding, bias=False), nn.BatchNorm2d(out_ch),
+                         nn.ReLU(inplace=True))
 
 
 def xcorr_depthwise(search: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
@@ -24,10 +25,10 @@ def xcorr_depthwise(search: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
 
 
 class DepthwiseBAN(nn.Module):
-    def __init__(self, in_ch: int, hidden: int, out_ch: int) -> None:
+    def __init__(self, in_ch: int, hidden: int, out_ch: int, search_padding: int = 0) -> None:
         super().__init__()
         self.conv_kernel = conv_bn_relu(in_ch, hidden, 3)
-        self.conv_search = conv_bn_relu(in_ch, hidden, 3)
+        self.conv_search = conv_bn_relu(in_ch, hidden, 3, search_padding)
         self.head = nn.Sequential(nn.Conv2d(hidden, hidden, 1, bias=False), nn.BatchNorm2d(hidden),
                                   nn.ReLU(inplace=True), nn.Conv2d(hidden, out_ch, 1))
 
@@ -36,20 +37,20 @@ class DepthwiseBAN(nn.Module):
 
 
 class BoxLevel(nn.Module):
-    def __init__(self, in_ch: int, hidden: int) -> None:
+    def __init__(self, in_ch: int, hidden: int, search_padding: int = 0) -> None:
         super().__init__()
-        self.cls = DepthwiseBAN(in_ch, hidden, 2)
-        self.loc = DepthwiseBAN(in_ch, hidden, 4)
+        self.cls = DepthwiseBAN(in_ch, hidden, 2, search_padding)
+        self.loc = DepthwiseBAN(in_ch, hidden, 4, search_padding)
 
 
 class MultiBAN(nn.Module):
     """cls = sum_l softmax(cls_weight)_l cls_l; loc = sum_l softmax(loc_weight)_l exp(loc_scale_l loc_l)."""
 
-    def __init__(self, level_names: tuple[int, ...], in_ch: int, hidden: int) -> None:
+    def __init__(self, level_names: tuple[int, ...], in_ch: int, hidden: int, search_padding: int = 0) -> None:
         super().__init__()
         self.level_names = level_names
         for name in level_names:
-            self.add_module(f"box{name}", BoxLevel(in_ch, hidden))
+            self.add_module(f"box{name}", BoxLevel(in_ch, hidden, search_padding))
         n = len(level_names)
         self.cls_weight = nn.Parameter(torch.ones(n))
         self.loc_weight = nn.Parameter(torch.ones(n))

@@ -41,3 +41,22 @@ def align_loss(denoiser: Denoiser, alpha_bar: torch.Tensor, x0: torch.Tensor, co
     xt = ab.sqrt() * x0 + (1.0 - ab).sqrt() * eps
     pred = denoiser(torch.cat([xt, cond], dim=1), t.float())
     return F.mse_loss(pred, eps)
+
+
+def distill_cls_loss(cls: torch.Tensor, teacher_prob: torch.Tensor) -> torch.Tensor:
+    """Soft-target cross-entropy of the student's foreground probability against the teacher's, every cell."""
+    return F.binary_cross_entropy_with_logits(cls[:, 1] - cls[:, 0], teacher_prob)
+
+
+def distill_loc_loss(loc: torch.Tensor, teacher_loc: torch.Tensor, teacher_prob: torch.Tensor) -> torch.Tensor:
+    """L1 between log box distances where the teacher sees the target (its probability > 0.5)."""
+    sure = teacher_prob > 0.5
+    if not sure.any():
+        return loc.sum() * 0
+    diff = (loc.clamp_min(1e-3).log() - teacher_loc.clamp_min(1e-3).log()).abs()
+    return diff.permute(0, 2, 3, 1)[sure].mean()
+
+
+def feature_distill_loss(student: torch.Tensor, teacher: torch.Tensor) -> torch.Tensor:
+    """1 - cosine similarity per position between adapted student features and the teacher's (scale-free)."""
+    return (1.0 - F.cosine_similarity(student, teacher, dim=1)).mean()

@@ -12,10 +12,11 @@ class AdjustLayer(nn.Module):
         self.downsample = nn.Sequential(nn.Conv2d(in_ch, out_ch, 1, bias=False), nn.BatchNorm2d(out_ch))
         self.center_size = center_size
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, template: bool) -> torch.Tensor:
         x = self.downsample(x)
-        if x.shape[3] < 20:  # template map: keep the centre (4 .. 4 + center_size)
-            x = x[:, :, 4:4 + self.center_size, 4:4 + self.center_size]
+        if template:  # keep the centre: 15 -> 4..11 for SiamBAN (the release's x[:, :, 4:11, 4:11]), 16 -> 4..12
+            start = (x.shape[3] - self.center_size) // 2
+            x = x[:, :, start:start + self.center_size, start:start + self.center_size]
         return x
 
 
@@ -27,5 +28,6 @@ class AdjustAllLayer(nn.Module):
         for name, in_ch in zip(level_names, in_channels, strict=True):
             self.add_module(f"downsample{name}", AdjustLayer(in_ch, out_ch, center_size))
 
-    def forward(self, features: list[torch.Tensor]) -> list[torch.Tensor]:
-        return [getattr(self, f"downsample{name}")(f) for name, f in zip(self.level_names, features, strict=True)]
+    def forward(self, features: list[torch.Tensor], template: bool) -> list[torch.Tensor]:
+        return [getattr(self, f"downsample{name}")(f, template)
+                for name, f in zip(self.level_names, features, strict=True)]

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from .align import ReleasedAlignLayer, TrackingOrientedLayer
-from .config import ModelConfig
+from .config import LITE0_TRUNKS, ModelConfig, is_lite0
 from .denoiser import DDIMSampler, Denoiser
 from .head import MultiBAN
 from .neck import AdjustAllLayer
@@ -32,10 +32,11 @@ class BranchOutput:
 def build_backbone(cfg: ModelConfig) -> nn.Module:
     if cfg.backbone == "resnet50-atrous":
         return AtrousResNet50()
-    if cfg.backbone == "efficientnet-lite0":
+    if is_lite0(cfg.backbone):
         from .efficientnet_lite import EfficientNetLite0
 
-        return EfficientNetLite0(last_block=10, dilate_from_block=5, out_blocks=(7, 10))
+        last, dilate, outs = LITE0_TRUNKS[cfg.backbone]
+        return EfficientNetLite0(last_block=last, dilate_from_block=dilate, out_blocks=outs)
     raise ValueError(f"unknown backbone {cfg.backbone!r}")
 
 
@@ -64,12 +65,12 @@ class DaDiffNet(nn.Module):
                 self.align_track = nn.Identity()
             else:
                 raise ValueError(f"unknown alignment layer {cfg.align!r}")
-        self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden)
+        self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden, cfg.head_search_padding)
 
     def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
         feats = self.backbone(img)
-        if self.cfg.backbone == "efficientnet-lite0":
-            feats = [torch.cat(feats, dim=1)]  # one fused stride-8 level
+        if is_lite0(self.cfg.backbone) and len(feats) > 1:
+            feats = [torch.cat(feats, dim=1)]  # one fused level
         return feats
 
     def diffuse(self, neck: list[torch.Tensor], noise: torch.Tensor) -> list[list[torch.Tensor]]:
@@ -81,8 +82,8 @@ class DaDiffNet(nn.Module):
             return [[s[i * n:(i + 1) * n] for s in states] for i in range(len(neck))]
         return [self.sampler(self.diffusion, f, noise.expand(n, -1, -1, -1)) for f in neck]
 
-    def branch(self, img: torch.Tensor, noise: torch.Tensor) -> BranchOutput:
-        neck = self.neck(self.backbone_features(img))
+    def branch(self, img: torch.Tensor, noise: torch.Tensor, template: bool) -> BranchOutput:
+        neck = self.neck(self.backbone_features(img), template)
         if not self.cfg.use_dadiff:
             return BranchOutput(neck, [[f] for f in neck], neck)
         states = self.diffuse(neck, noise)
@@ -91,7 +92,7 @@ class DaDiffNet(nn.Module):
 
     def template(self, z: torch.Tensor) -> list[torch.Tensor]:
         """Aligned template features per level (what the head receives)."""
-        return self.branch(z, self.e_zf).aligned
+        return self.branch(z, self.e_zf, template=True).aligned
 
     def template_kernels(self, z: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]:
         zf = self.template(z)
@@ -100,7 +101,7 @@ class DaDiffNet(nn.Module):
 
     def track(self, x: torch.Tensor, kcls: list[torch.Tensor],
               kloc: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        xf = self.branch(x, self.e_xf).aligned
+        xf = self.branch(x, self.e_xf, template=False).aligned
         return self.head(xf, kcls, kloc)
 
     def forward(self, z: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -110,10 +111,10 @@ class DaDiffNet(nn.Module):
 
 
 def build_model(cfg: ModelConfig, pretrained_backbone: bool = False) -> DaDiffNet:
-    """A new network; `pretrained_backbone` loads the ImageNet EfficientNet-Lite0 weights (dadiff-lite)."""
+    """A new network; `pretrained_backbone` loads the ImageNet EfficientNet-Lite0 weights (lite, mobile)."""
     net = DaDiffNet(cfg)
     if pretrained_backbone:
-        if cfg.backbone != "efficientnet-lite0":
+        if not is_lite0(cfg.backbone):
             raise ValueError(f"no bundled pretrained weights for backbone {cfg.backbone!r}")
         from .efficientnet_lite import load_imagenet_weights
 

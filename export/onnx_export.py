@@ -25,6 +25,7 @@ from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
 from .checkpoint import LoadedCheckpoint
+from .config import is_lite0
 from .network import DaDiffNet
 
 SUPPORTED_OPSETS = range(14, 21)
@@ -98,7 +99,7 @@ def model_metadata(loaded: LoadedCheckpoint, name: str, opset: int) -> dict[str,
 
 def _module_constant(backbone: str, name: str, default: list[float]) -> list[float]:
     """The in-graph pixel normalisation of a backbone (the released ResNet takes raw pixels)."""
-    if backbone == "efficientnet-lite0":
+    if is_lite0(backbone):
         from . import efficientnet_lite
 
         return list(getattr(efficientnet_lite, name))

@@ -26,9 +26,9 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint
-from .config import ModelConfig, default_config
+from .config import ModelConfig, default_config, is_lite0
 from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
-from .losses import align_loss, ban_cls_loss, ban_iou_loss
+from .losses import align_loss, ban_cls_loss, ban_iou_loss, distill_cls_loss, distill_loc_loss, feature_distill_loss
 from .network import DaDiffNet, build_model
 from .train_data import CropConfig, PairStream, make_day_source
 
@@ -63,6 +63,9 @@ class TrainConfig:
     grad_clip: float = 10.0
     checkpoint_every: int = 100
     seed: int = 0
+    teacher: str | None = None            # NanoTrack v3 ONNX folder: distil its responses and search features
+    lambda_distill: float = 1.0           # teacher cls + loc responses (stride-16 families)
+    lambda_feature: float = 0.5           # teacher search features through a training-only 1x1 adapter
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
@@ -100,7 +103,7 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
 def build_network(cfg: TrainConfig) -> DaDiffNet:
     mc = model_config(cfg)
     if cfg.init == "imagenet":
-        net = build_model(mc, pretrained_backbone=mc.backbone == "efficientnet-lite0")
+        net = build_model(mc, pretrained_backbone=is_lite0(mc.backbone))
         for box in net.head.levels():  # start the box distances near a typical target half-size (32 crop px)
             nn.init.constant_(box.loc.head[3].bias, math.log(32.0))
         return net
@@ -118,7 +121,7 @@ def build_network(cfg: TrainConfig) -> DaDiffNet:
 def freeze_early_blocks(net: DaDiffNet, blocks: int) -> list[nn.Module]:
     """Keep the stem and the first backbone blocks at their ImageNet weights (and BN statistics)."""
     frozen: list[nn.Module] = []
-    if net.cfg.backbone != "efficientnet-lite0" or blocks <= 0:
+    if not is_lite0(net.cfg.backbone) or blocks <= 0:
         return frozen
     bb = net.backbone
     frozen = [bb._conv_stem, bb._bn0, *list(bb._blocks)[:blocks]]
@@ -156,23 +159,39 @@ def disc_lr(cfg: TrainConfig, step: int) -> float:
 
 
 class Trainer:
-    def __init__(self, cfg: TrainConfig, rank: int = 0, world: int = 1) -> None:
+    def __init__(self, cfg: TrainConfig, rank: int = 0, world: int = 1, device: str = "cpu") -> None:
         self.cfg, self.rank, self.world = cfg, rank, world
+        self.device = torch.device(device)
         torch.manual_seed(cfg.seed)
         self.out = Path(cfg.out)
-        self.net = build_network(cfg)
+        self.net = build_network(cfg).to(self.device)
         self.frozen = freeze_early_blocks(self.net, cfg.freeze_backbone_blocks)
         self.dadiff = cfg.stage == "dadiff"
         self.use_adv = self.dadiff and cfg.adversarial
-        self.disc = SuccessiveDiscriminator(self.net.cfg.channels, self.net.cfg.diffusion_total_steps) \
-            if self.use_adv else None
+        self.disc = SuccessiveDiscriminator(self.net.cfg.channels, self.net.cfg.diffusion_total_steps).to(
+            self.device) if self.use_adv else None
         self.opt = make_optimizer(param_groups(self.net, cfg), cfg)
         self.disc_opt = torch.optim.Adam(self.disc.parameters(), lr=cfg.disc_lr, betas=(0.9, 0.99)) \
             if self.disc is not None else None
+        self.teacher, self.adapter = self.build_teacher()
+        if self.adapter is not None:
+            self.opt.add_param_group({"params": list(self.adapter.parameters()), "lr_mult": 1.0})
         self.step = 0
-        forward = TrainForward(self.net, cfg.seed * 1000 + rank)
+        forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device)
         self.model = DistributedDataParallel(forward, find_unused_parameters=True) if world > 1 else forward
         self.dmodel = (DistributedDataParallel(self.disc) if world > 1 else self.disc) if self.disc else None
+
+    def build_teacher(self) -> tuple[Any, nn.Module | None]:
+        """The teacher and the 1x1 conv mapping our search neck to its feature width (never exported)."""
+        if not self.cfg.teacher:
+            return None, None
+        from .teacher import TEACHER_STRIDE, NanoTrackTeacher
+
+        if self.net.cfg.tracker.stride != TEACHER_STRIDE or len(self.net.cfg.level_names) != 1:
+            raise ValueError(f"teacher distillation needs a one-level stride-{TEACHER_STRIDE} family "
+                             f"(dadiff-mobile), not {self.net.cfg.family}")
+        teacher = NanoTrackTeacher(self.cfg.teacher)
+        return teacher, nn.Conv2d(self.net.cfg.channels, 96, 1).to(self.device)
 
     # ---- checkpoints -------------------------------------------------------------------------------
     @property
@@ -188,6 +207,8 @@ class Trainer:
         if self.disc is not None:
             extra["discriminator"] = self.disc.state_dict()
             extra["disc_optimizer"] = self.disc_opt.state_dict()
+        if self.adapter is not None:
+            extra["teacher_adapter"] = self.adapter.state_dict()
         save_checkpoint(path or self.last_path, self.net, **extra)
 
     def resume(self) -> bool:
@@ -195,6 +216,8 @@ class Trainer:
             return False
         obj = read_checkpoint_file(self.last_path)
         self.net.load_state_dict(obj["state_dict"], strict=True)
+        if self.adapter is not None and "teacher_adapter" in obj:
+            self.adapter.load_state_dict(obj["teacher_adapter"])
         self.opt.load_state_dict(obj["optimizer"])
         if self.disc is not None and "discriminator" in obj:
             self.disc.load_state_dict(obj["discriminator"])
@@ -222,11 +245,20 @@ class Trainer:
         cfg = self.cfg
         self.set_lr()
         self.train_mode()
+        cpu_batch = batch
+        batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
         night_inputs = (batch["z_night"], batch["x_night"]) if self.dadiff else ()
-        l_cls, l_loc, l_align, day_states, night_states = self.model(
+        l_cls, l_loc, l_align, day_states, night_states, (cls, loc, x_neck) = self.model(
             batch["z"], batch["x"], batch["label"], batch["loc"], bool(batch["paired"].all()), *night_inputs)
         total = cfg.lambda_trc * (l_cls + l_loc)
         logs = {"cls": l_cls.item(), "loc": l_loc.item()}
+        if self.teacher is not None:
+            t_feat, t_prob, t_loc = (t.to(self.device) for t in self.teacher(cpu_batch["z"], cpu_batch["x"],
+                                                                              cls.shape[-1]))
+            l_distill = distill_cls_loss(cls, t_prob) + distill_loc_loss(loc, t_loc, t_prob)
+            l_feature = feature_distill_loss(self.adapter(x_neck), t_feat)
+            total = total + cfg.lambda_distill * l_distill + cfg.lambda_feature * l_feature
+            logs |= {"distill": l_distill.item(), "feature": l_feature.item()}
         if self.dadiff and cfg.align_loss:
             total = total + cfg.lambda_align * l_align
             logs["align"] = l_align.item()
@@ -263,27 +295,28 @@ class Trainer:
 class TrainForward(nn.Module):
     """The tracker's side of one step in a single forward, so that DistributedDataParallel can wrap it."""
 
-    def __init__(self, net: DaDiffNet, seed: int) -> None:
+    def __init__(self, net: DaDiffNet, seed: int, device: torch.device | str = "cpu") -> None:
         super().__init__()
         self.net = net
-        self.gen = torch.Generator().manual_seed(seed)
+        self.gen = torch.Generator(device=device).manual_seed(seed)
 
     def forward(self, z: torch.Tensor, x: torch.Tensor, label: torch.Tensor, loc_target: torch.Tensor, paired: bool,
                 z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
         net = self.net
-        zb, xb = net.branch(z, net.e_zf), net.branch(x, net.e_xf)
+        zb, xb = net.branch(z, net.e_zf, True), net.branch(x, net.e_xf, False)
         cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
         l_cls, l_loc = ban_cls_loss(cls, label), ban_iou_loss(loc, loc_target, label)
         day_states = [s for b in (zb, xb) for level in b.states for s in level]
+        outputs = (cls, loc, xb.neck[0])  # for the teacher's losses
         if z_night is None:
-            return l_cls, l_loc, cls.sum() * 0, day_states, []
-        zn, xn = net.branch(z_night, net.e_zf), net.branch(x_night, net.e_xf)
+            return l_cls, l_loc, cls.sum() * 0, day_states, [], outputs
+        zn, xn = net.branch(z_night, net.e_zf, True), net.branch(x_night, net.e_xf, False)
         night_states = [s for b in (zn, xn) for level in b.states for s in level]
         # L_align: recover day features from noise, conditioned on the night features of the same content
         # (night rendered from day), or on the day features themselves when the night data is unpaired
         losses = [align_loss(net.diffusion, net.sampler.alpha_bar, d.detach(), n if paired else d, self.gen)
                   for db, nb in ((zb, zn), (xb, xn)) for d, n in zip(db.neck, nb.neck, strict=True)]
-        return l_cls, l_loc, torch.stack(losses).mean(), day_states, night_states
+        return l_cls, l_loc, torch.stack(losses).mean(), day_states, night_states, outputs
 
 
 def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
@@ -296,16 +329,31 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
                       persistent_workers=cfg.workers > 0)
 
 
-def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True) -> Trainer:
+def pick_device(name: str, rank: int = 0) -> str:
+    """'auto' takes the GPU when PyTorch sees one (one per rank under torchrun), else the CPU."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError("--device cuda: PyTorch sees no GPU here")
+        return f"cuda:{rank % torch.cuda.device_count()}"
+    if name != "cpu":
+        raise ValueError(f"--device must be auto, cpu or cuda, got {name!r}")
+    return name
+
+
+def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, device: str = "cpu",
+        max_minutes: float | None = None) -> Trainer:
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
     if world > 1 and not dist.is_initialized():
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
-    trainer = Trainer(cfg, rank, world)
+    trainer = Trainer(cfg, rank, world, pick_device(device, rank))
+    deadline = time.monotonic() + 60 * max_minutes if max_minutes else math.inf
     resumed = trainer.resume()
     loader = iter(data_loader(cfg, trainer.net, rank))
     log_path = trainer.out / "log.csv"
-    fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "sec_per_step"]
+    fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "distill", "feature", "sec_per_step"]
     if rank == 0:
         trainer.out.mkdir(parents=True, exist_ok=True)
         new_log = not log_path.exists() or not resumed
@@ -320,7 +368,7 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True) -
 
         bar = tqdm(total=cfg.steps, initial=trainer.step, desc=f"{cfg.stage}", dynamic_ncols=True)
     try:
-        while trainer.step < end:
+        while trainer.step < end and time.monotonic() < deadline:
             t0 = time.perf_counter()
             logs = trainer.step_on(next(loader))
             logs["sec_per_step"] = time.perf_counter() - t0
@@ -359,12 +407,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--config", required=True, help="training config (TOML); see configs/")
     p.add_argument("--max-steps", type=int, help="stop after this many steps of this run (resume later)")
     p.add_argument("--out", help="override the output folder")
+    p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
+    p.add_argument("--max-minutes", type=float, help="stop after this many minutes of this run (resume later)")
     args = p.parse_args(argv)
     try:
         cfg = TrainConfig.from_toml(args.config)
         if args.out:
             cfg.out = args.out
-        trainer = run(cfg, args.max_steps)
+        trainer = run(cfg, args.max_steps, device=args.device, max_minutes=args.max_minutes)
     except (ValueError, CheckpointError) as e:
         print(f"dadiff-train: error: {e}", file=sys.stderr)
         return 2

@@ -118,21 +118,36 @@ def to_chw(img: np.ndarray) -> torch.Tensor:
 
 
 class SceneSource:
-    """Pairs of frames from generated scenes over the training split of photographs."""
+    """Pairs of frames from generated scenes: over scikit-image's training photos (`source` "skimage") or
+    over the real-photo library's training split (`source` "library": cut-outs over aerial textures and
+    photos, after `dadiff-eval data fetch`)."""
 
-    def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4) -> None:
-        from dadiff.runtime.evaluation.scenes import load_photos
+    def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4,
+                 source: str = "skimage") -> None:
+        from dadiff.runtime.evaluation.scenes import SceneError, load_photos, open_scene_library
 
-        self.photos = load_photos(split)
+        if source not in ("skimage", "library"):
+            raise ValueError(f"unknown scene source {source!r}; expected skimage or library")
+        try:
+            self.photos = load_photos(split) if source == "skimage" else None
+            self.library = open_scene_library() if source == "library" else None
+        except SceneError as exc:
+            raise ValueError(str(exc)) from None
+        self.split = split
         self.max_gap = max_gap
         self.pairs_per_scene = pairs_per_scene  # building a scene costs ~10x rendering one of its frames
         self._scene, self._uses = None, 0
 
-    def sample(self, rng: np.random.Generator):
-        from dadiff.runtime.evaluation.scenes import Scene
+    def _new_scene(self, rng: np.random.Generator):
+        from dadiff.runtime.evaluation.scenes import Scene, random_library_scene
 
+        if self.library is not None:
+            return random_library_scene(rng, self.library, self.split, frames=self.max_gap + 1)
+        return Scene.random(rng, self.photos, frames=self.max_gap + 1)
+
+    def sample(self, rng: np.random.Generator):
         if self._scene is None or self._uses >= self.pairs_per_scene:
-            self._scene, self._uses = Scene.random(rng, self.photos, frames=self.max_gap + 1), 0
+            self._scene, self._uses = self._new_scene(rng), 0
         scene = self._scene
         self._uses += 1
         i, j = sorted(rng.integers(0, self.max_gap + 1, size=2))
@@ -221,7 +236,8 @@ class NightFolderSource:
 def make_day_source(spec: dict):
     kind = spec.get("kind")
     if kind == "scenes":
-        return SceneSource(spec.get("split", "train"))
+        return SceneSource(spec.get("split", "train"), pairs_per_scene=int(spec.get("pairs", 4)),
+                           source=spec.get("source", "skimage"))
     if kind in ("got10k", "otb", "sequences"):
         return SequenceSource(spec["root"])
     if kind == "images":

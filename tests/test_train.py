@@ -36,7 +36,7 @@ def config(tmp_path: Path, image_folder: Path, **kw) -> TrainConfig:
 def losses_on(trainer: Trainer, batch) -> dict[str, float]:
     trainer.train_mode()
     with torch.no_grad():
-        l_cls, l_loc, l_align, _, night = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"],
+        l_cls, l_loc, l_align, _, night, _ = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"],
                                                          False, batch["z_night"], batch["x_night"])
         adv = trainer.disc(night, trainer.state_timesteps(len(night)))
     return {"cls": l_cls.item(), "loc": l_loc.item(), "adv": ((adv - 0.0) ** 2).sum(1).mean().item()}
@@ -112,6 +112,34 @@ def test_baseline_stage_bypasses_the_dadiff_block(tmp_path, image_folder):
     cfg = config(tmp_path, image_folder, stage="baseline", steps=1)
     trainer = run(cfg, progress=False)
     assert not trainer.net.cfg.use_dadiff and trainer.disc is None
+
+
+TEACHER = Path(__file__).resolve().parents[2] / "shared" / "weights" / "nanotrack" / "v3"
+
+
+@pytest.mark.skipif(not TEACHER.is_dir(), reason="NanoTrack v3 teacher weights are not at ../shared/weights")
+def test_teacher_distillation_trains_the_mobile_family_and_stays_out_of_the_model(tmp_path, image_folder):
+    cfg = config(tmp_path, image_folder, stage="baseline", family="dadiff-mobile", init="imagenet", steps=3,
+                 teacher=str(TEACHER), freeze_backbone_blocks=2)
+    trainer = Trainer(cfg)
+    batch = next(iter(data_loader(cfg, trainer.net, 0)))
+    adapter = trainer.adapter.weight.detach().clone()
+    first = trainer.step_on(batch)
+    for _ in range(3):
+        logs = trainer.step_on(batch)
+    assert logs["distill"] < first["distill"] and logs["feature"] < first["feature"]
+    assert not torch.equal(adapter, trainer.adapter.weight)  # the adapter is trained with the network
+    trainer.save(tmp_path / "final.pt")
+    from dadiff.export.checkpoint import load_checkpoint
+
+    model_keys = set(load_checkpoint(tmp_path / "final.pt").model.state_dict())
+    assert model_keys == set(trainer.net.state_dict()) and not any("adapter" in k for k in model_keys)
+
+
+def test_teacher_needs_a_stride_16_family(tmp_path, image_folder):
+    cfg = config(tmp_path, image_folder, stage="baseline", teacher=str(tmp_path))
+    with pytest.raises(ValueError, match="stride-16"):
+        Trainer(cfg)
 
 
 def test_bad_config_is_one_line(tmp_path, capsys):
