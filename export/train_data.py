@@ -124,7 +124,9 @@ class SceneSource:
 
     def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4,
                  source: str = "skimage") -> None:
-        from dadiff.runtime.evaluation.scenes import SceneError, load_photos, open_scene_library
+        from dadiff.runtime.evaluation.library_scenes import open_scene_library
+        from dadiff.runtime.evaluation.photos import load_photos
+        from dadiff.runtime.evaluation.scenes import SceneError
 
         if source not in ("skimage", "library"):
             raise ValueError(f"unknown scene source {source!r}; expected skimage or library")
@@ -139,7 +141,8 @@ class SceneSource:
         self._scene, self._uses = None, 0
 
     def _new_scene(self, rng: np.random.Generator):
-        from dadiff.runtime.evaluation.scenes import Scene, random_library_scene
+        from dadiff.runtime.evaluation.library_scenes import random_library_scene
+        from dadiff.runtime.evaluation.scene import Scene
 
         if self.library is not None:
             return random_library_scene(rng, self.library, self.split, frames=self.max_gap + 1)
@@ -256,7 +259,7 @@ class PairStream(IterableDataset):
         self.night_source = NightFolderSource(night) if night and with_night else None
 
     def _night(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        from dadiff.runtime.evaluation.scenes import render_night
+        from dadiff.runtime.evaluation.night import render_night
 
         return render_night(frame, rng)
 

@@ -21,7 +21,10 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.scenes import NightLights, RealNight, Scene, load_photos, make_sequence, render_night
+from dadiff.runtime.evaluation.night import NightLights, RealNight, render_night
+from dadiff.runtime.evaluation.photos import load_photos
+from dadiff.runtime.evaluation.scene import Scene
+from dadiff.runtime.evaluation.scenes import make_sequence
 
 pytest.importorskip("skimage")  # the scene photos
 

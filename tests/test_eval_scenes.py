@@ -14,22 +14,14 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation import scenes
+from dadiff.runtime.evaluation import library_scenes
 from dadiff.runtime.evaluation.datasets import load_dataset
-from dadiff.runtime.evaluation.scenes import (
-    PHOTO_SPLITS,
-    RealNight,
-    Scene,
-    SceneError,
-    SceneNight,
-    load_photos,
-    make_sequence,
-    motion_blur,
-    random_library_scene,
-    render_night,
-    visible_box,
-    write_benchmark,
-)
+from dadiff.runtime.evaluation.geometry import visible_box
+from dadiff.runtime.evaluation.library_scenes import random_library_scene
+from dadiff.runtime.evaluation.night import RealNight, motion_blur, poisson, render_night
+from dadiff.runtime.evaluation.photos import PHOTO_SPLITS, load_photos
+from dadiff.runtime.evaluation.scene import Scene
+from dadiff.runtime.evaluation.scenes import SceneError, SceneNight, make_sequence, write_benchmark
 
 pytest.importorskip("skimage")  # the scene photos
 
@@ -119,7 +111,7 @@ def test_render_night_is_darker_noisy_and_deterministic():
 def test_poisson_table_matches_the_distribution():
     rng = np.random.default_rng(0)
     for lam in (0.5, 4.0, 30.0, 2000.0):
-        x = scenes.poisson(np.full((200, 200), lam, np.float32), rng)
+        x = poisson(np.full((200, 200), lam, np.float32), rng)
         assert x.mean() == pytest.approx(lam, rel=0.03)
         assert x.var() == pytest.approx(lam, rel=0.08)
 
@@ -365,7 +357,7 @@ def test_library_scenes_change_scale_strongly_and_mix_object_sizes(library):
 
 def test_library_scenes_keep_train_and_test_apart(monkeypatch):
     for split in ("train", "test"):
-        monkeypatch.setattr(scenes, "_LIBRARY_CACHE", {})  # nothing loaded by another test
+        monkeypatch.setattr(library_scenes, "_LIBRARY_CACHE", {})  # nothing loaded by another test
         fresh = FakeLibrary()
         for seed in range(6):
             random_library_scene(np.random.default_rng(seed), fresh, split, frames=5, size=SMALL)

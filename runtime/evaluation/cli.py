@@ -32,8 +32,10 @@ from .evaluate import (
     score_folder,
 )
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
+from .night import NIGHT_STYLES
+from .photos import PHOTO_SPLITS
 from .plots import write_plots
-from .scenes import NIGHT_STYLES, PHOTO_SPLITS, SOURCES, SceneError, write_benchmark
+from .scenes import SOURCES, SceneError, write_benchmark
 
 PROG = "dadiff-eval"
 NOTE = (
