@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .backend import RecordingBackend
-from .evaluation.evaluate import protocol_box
+from .evaluation.evaluate import BoxTracker, protocol_box
 from .evaluation.scenes import make_sequence
 from .outputs import open_mp4
 from .tracker import Tracker, TrackResult
@@ -122,7 +122,7 @@ def _open(video: NightVideo) -> cv2.VideoCapture:
     return capture
 
 
-def _init(tracker: Tracker, capture: cv2.VideoCapture, video: NightVideo) -> float:
+def _init(tracker: Tracker | BoxTracker, capture: cv2.VideoCapture, video: NightVideo) -> float:
     ok, frame = capture.read()
     if not ok:
         raise OSError(f"{video.path}: cannot read the first frame")
@@ -178,6 +178,45 @@ def run_bench(
     run.seconds = time.perf_counter() - started
     run.peak_rss = peak_rss_bytes()
     return run
+
+
+def run_baseline_bench(
+    tracker: BoxTracker, video: NightVideo, frames: int, warmup: int = 20, template_runs: int = 10
+) -> dict:
+    """A baseline tracker (OpenCV's TrackerNano) on the same clip, looped the same way as `run_bench`.
+
+    Only the stages it has: video decode, its update, the frame end to end (decode + update, no 275
+    packing), and its init (template branch); the same summary keys as `BenchRun.summary`.
+    """
+    capture = _open(video)
+    template = []
+    for _ in range(template_runs):
+        capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
+        template.append(_init(tracker, capture, video))
+    stages = {s: np.full(frames, np.nan) for s in ("decode", "tracker", "frame")}
+    started = time.perf_counter()
+    try:
+        for i in range(-warmup, frames):
+            if i == 0:
+                started = time.perf_counter()
+            t0 = time.perf_counter()
+            ok, frame = capture.read()
+            if not ok:
+                capture.release()
+                capture = _open(video)
+                template.append(_init(tracker, capture, video))
+                t0 = time.perf_counter()
+                ok, frame = capture.read()
+            t1 = time.perf_counter()
+            tracker.update(frame)
+            t2 = time.perf_counter()
+            if i >= 0:
+                stages["decode"][i], stages["tracker"][i], stages["frame"][i] = t1 - t0, t2 - t1, t2 - t0
+    finally:
+        capture.release()
+    seconds = time.perf_counter() - started
+    return {"frames": frames, "seconds": seconds, "fps": frames / seconds, "template": latency_ms(template[1:]),
+            **{name: latency_ms(values) for name, values in stages.items()}}
 
 
 def search_crops(tracker: Tracker, video: NightVideo, count: int) -> tuple[np.ndarray, np.ndarray]:

@@ -3,7 +3,8 @@
 The models run one after another on the same generated night video (same frames, same threads); the first
 is the reference for the ratios. `--compare-torch` times the PyTorch graph on the same crops (a subprocess:
 this package never imports torch), `--sweep-steps` re-exports a checkpoint with other DDIM step counts and
-sets speed beside night success, `--peak` measures the CPU's arithmetic limit.
+sets speed beside night success, `--peak` measures the CPU's arithmetic limit. OpenCV's TrackerNano
+(NanoTrack v2) runs on the same frames as a reference point when its weights are here (`--no-nano` skips it).
 """
 
 from __future__ import annotations
@@ -16,20 +17,40 @@ import platform
 import subprocess
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import cv2
 import numpy as np
 import onnxruntime as ort
 from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
-from .bench import NightVideo, latency_ms, run_bench, search_crops, time_search, write_night_video
+from .bench import (
+    NightVideo,
+    latency_ms,
+    run_baseline_bench,
+    run_bench,
+    search_crops,
+    time_search,
+    write_night_video,
+)
 from .cli import positive_int
+from .cpu import cpu_flags
 from .errors import InputError, ModelError
 from .evaluation.datasets import Dataset
-from .evaluation.evaluate import generated_night_set, score_tracker
+from .evaluation.evaluate import (
+    EvalError,
+    OpenCVTracker,
+    generated_night_set,
+    nano_available,
+    nano_label,
+    run_tracker,
+    score_folder,
+    score_tracker,
+    tracker_folder,
+)
 from .onnx_backend import physical_cores, thread_count
 from .tracker import Tracker
 
@@ -39,6 +60,7 @@ ROWS = (
     ("frame", "frame end to end"), ("template", "template branch (per init)"),
 )
 SUCCESS_SEED = 2026  # the README's generated benchmark: --success 16 --success-frames 120 is that set
+CPU_FLAGS = ("avx2", "avx512f", "avx512_vnni")  # what onnxruntime's and OpenCV's fast kernels dispatch on
 
 
 class BenchError(Exception):
@@ -65,6 +87,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", help="checkpoint of the first model (default: checkpoint.pt in its folder)")
     p.add_argument("--sweep-steps", help="comma-separated DDIM step counts to re-export and compare, e.g. 1,2,4")
     p.add_argument("--peak", action="store_true", help="measure the CPU's arithmetic limit (needs dadiff[export])")
+    p.add_argument("--nano", action=argparse.BooleanOptionalAction, default=None,
+                   help="also time OpenCV's TrackerNano (NanoTrack v2) on the same frames "
+                        "(default: on when its weights are found)")
+    p.add_argument("--nano-dir", type=Path, metavar="DIR",
+                   help="NanoTrack v2 ONNX folder (default: ../shared/weights/nanotrack/v2 beside the checkout)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
     return p
 
@@ -151,13 +178,57 @@ def _sweep_models(first: Path, args: argparse.Namespace, tmp: Path) -> list[Path
 
 
 def _cpu() -> dict:
+    """CPU model, core counts, the instruction sets speed depends on (None where unknown), versions."""
     model = platform.processor() or platform.machine()
+    flags: dict[str, bool | None] = dict.fromkeys(CPU_FLAGS)
     try:
         with open("/proc/cpuinfo") as f:
-            model = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), model)
+            text = f.read()
     except OSError:
-        pass
-    return {"cpu": model, "logical": os.cpu_count(), "physical": physical_cores(), "onnxruntime": ort.__version__}
+        text = ""
+    model = next((ln.split(":", 1)[1].strip() for ln in text.splitlines() if ln.startswith("model name")), model)
+    present = cpu_flags(text)
+    if present:
+        flags = {flag: flag in present for flag in CPU_FLAGS}
+    return {"cpu": model, "logical": os.cpu_count(), "physical": physical_cores(), "flags": flags,
+            "onnxruntime": ort.__version__, "opencv": cv2.__version__}
+
+
+def _flags_text(flags: dict[str, bool | None]) -> str:
+    """'avx2 yes, avx512f yes, avx512_vnni no' (or '?' where /proc/cpuinfo could not say)."""
+    return ", ".join(f"{k} {'?' if v is None else 'yes' if v else 'no'}" for k, v in flags.items())
+
+
+def _use_nano(args: argparse.Namespace) -> bool:
+    """--nano: required (a missing weight is an error); default: when the weights are here."""
+    if args.nano is False:
+        return False
+    if args.nano is None:
+        return nano_available(args.nano_dir)
+    try:
+        OpenCVTracker("nano", nano_dir=args.nano_dir)  # checks the module and the files, loads nothing
+    except EvalError as exc:
+        raise BenchError(str(exc)) from None
+    return True
+
+
+def _bench_nano(args: argparse.Namespace, video: NightVideo, night: Dataset | None, results: Path,
+                threads: int) -> dict:
+    """TrackerNano on the same clip (and night set) with OpenCV's threads set to ours (`_use_nano` checked it)."""
+    tracker = OpenCVTracker("nano", nano_dir=args.nano_dir)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        result = {"name": nano_label(), "model": "cv2.TrackerNano", **run_baseline_bench(
+            tracker, video, args.frames, args.warmup)}
+        if night is not None:
+            run_tracker(tracker, "nano", night, results, progress=False)
+            scores = score_folder(night, tracker_folder(results, night.name, "nano"), "nano").overall
+            result["night"] = {"success": scores.success, "precision": scores.precision,
+                               "sequences": scores.sequences}
+    finally:
+        cv2.setNumThreads(before)
+    return result
 
 
 def _cell(entry: dict | None) -> str:
@@ -169,17 +240,37 @@ def _ratio(base: float, value: float) -> str:
     return "" if base == value else f" ({value / base:.2f}x)"
 
 
+def _or_dash(fmt: Callable[[dict], str]) -> Callable[[dict], str]:
+    """A row formatter that prints '-' for a column without that entry (the baseline's)."""
+    def cell(r: dict) -> str:
+        try:
+            return fmt(r)
+        except KeyError:
+            return "-"
+    return cell
+
+
+def _nano_line(ref: dict, nano: dict) -> str:
+    """Our first model against TrackerNano: per-frame update and end-to-end FPS."""
+    ours, theirs = ref["tracker"]["p50"], nano["tracker"]["p50"]
+    return (f"{ref['name']} vs {nano['name']}: update p50 {ours:.2f} ms vs {theirs:.2f} ms, FPS end to end "
+            f"{ref['fps']:.1f} vs {nano['fps']:.1f} -> {ref['name']} runs at {ref['fps'] / nano['fps']:.2f}x "
+            f"TrackerNano's frame rate ({theirs / ours:.2f}x its update speed)")
+
+
 def print_report(report: dict) -> None:
     results = report["results"]
     ref = results[0]
+    columns = [*results, *([report["nano"]] if "nano" in report else [])]
     head = report["machine"]
-    print(f"dadiff-bench: {head['cpu']}, {head['logical']} logical / {head['physical']} physical cores, "
-          f"onnxruntime {head['onnxruntime']}, {report['threads']} threads; {report['video']} "
+    print(f"dadiff-bench: {head['cpu']}, {head['logical']} logical / {head['physical']} physical cores "
+          f"({_flags_text(head['flags'])}), onnxruntime {head['onnxruntime']}, OpenCV {head['opencv']}, "
+          f"{report['threads']} threads; {report['video']} "
           f"({report['frames']} timed frames after {report['warmup']} warm-up, clip looped with re-init)")
-    width = max(22, *(len(r["name"]) + 2 for r in results))
-    print(f"{'ms (p50 / p95)':28s}" + "".join(f"{r['name']:>{width}s}" for r in results))
+    width = max(22, *(len(r["name"]) + 2 for r in columns))
+    print(f"{'ms (p50 / p95)':28s}" + "".join(f"{r['name']:>{width}s}" for r in columns))
     for key, label in ROWS:
-        print(f"{label:28s}" + "".join(f"{_cell(r.get(key)):>{width}s}" for r in results))
+        print(f"{label:28s}" + "".join(f"{_cell(r.get(key)):>{width}s}" for r in columns))
     lines = {
         "FPS end to end": lambda r: f"{r['fps']:.1f}" + _ratio(ref["fps"], r["fps"]),
         "outside ONNX (of update)": lambda r: f"{100 * r['outside_onnx_tracker']:.1f} %",
@@ -191,7 +282,9 @@ def print_report(report: dict) -> None:
     if all("night" in r for r in results):
         lines["night success (prec.)"] = lambda r: f"{r['night']['success']:.3f} ({r['night']['precision']:.3f})"
     for label, fmt in lines.items():
-        print(f"{label:28s}" + "".join(f"{fmt(r):>{width}s}" for r in results))
+        print(f"{label:28s}" + "".join(f"{_or_dash(fmt)(r):>{width}s}" for r in columns))
+    if "nano" in report:
+        print(_nano_line(ref, report["nano"]))
     for r in results:
         if "torch" in r:
             t = r["torch"]
@@ -218,6 +311,7 @@ def run(args: argparse.Namespace) -> dict:
     except ModelNotFoundError as exc:
         raise ModelError(str(exc)) from None
     threads = thread_count(args.threads)
+    use_nano = _use_nano(args)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         if args.sweep_steps:
             models += _sweep_models(models[0], args, Path(tmp))
@@ -227,12 +321,17 @@ def run(args: argparse.Namespace) -> dict:
             night = generated_night_set(Path(tmp) / "night", args.success, args.success_frames, SUCCESS_SEED)
         results = [_bench_model(m, args, video, night, args.compare_torch and i == 0, Path(tmp) / f"results{i}")
                    for i, m in enumerate(models)]
+        nano = _bench_nano(args, video, night, Path(tmp) / "results-nano", threads) if use_nano else None
     names = [r["name"] for r in results]
     for r in results:  # two models with one metadata name (an fp32 model and its int8 copy): show folders
         if names.count(r["name"]) > 1:
             r["name"] = Path(r["model"]).name
     report = {"machine": _cpu(), "threads": threads, "video": f"generated night sequence {video.name}",
               "frames": args.frames, "warmup": args.warmup, "results": results}
+    if nano is not None:
+        ref = results[0]
+        nano["ratio"] = {"fps": ref["fps"] / nano["fps"], "update": nano["tracker"]["p50"] / ref["tracker"]["p50"]}
+        report["nano"] = nano
     if args.peak:
         report["peak_gflops"] = _subprocess_json(
             ["-m", "dadiff.export.bench_torch", "peak", "--threads", str(threads)], "the peak measurement")["gflops"]

@@ -43,12 +43,21 @@ class Geometry:
 
 @dataclass(frozen=True)
 class Params:
-    """Tunable tracking parameters: released hyper-parameters plus lost/found thresholds.
+    """Tunable tracking parameters: released hyper-parameters plus lost/found and plausibility settings.
 
-    `uncertain_score`: below it a frame is reported 'uncertain'.
-    `lost_score`, `lost_frames`: that many consecutive frames below `lost_score` make the state 'lost'.
+    `uncertain_score`, `track_score`: the state is decided on a smoothed confidence with hysteresis: it
+    enters 'tracking' at `track_score` or above and leaves it below `uncertain_score`, so a score hovering
+    near one threshold does not flip the state at frame rate.
+    `score_smoothing`: weight of the newest frame in that confidence (an EMA; 1 = no smoothing).
+    `lost_score`, `lost_frames`: that many consecutive raw scores below `lost_score` make the state 'lost'
+    (a single one is never 'tracking'). `lost_score=0` is the released tracker exactly: no lost state, no
+    smoothing, no size bounds.
     `search_growth`, `search_growth_max`: while lost, the search region grows by this factor per frame,
     up to this multiple of its normal size.
+    `max_scale_step`: width and height each change by at most this factor per frame.
+    `max_scale_change`, `max_aspect_change`: the box's sqrt(area) and its w/h aspect stay within this factor
+    of the initial box's; a frame whose box these limits hold back is never 'tracking'.
+    `max_frame_cover`: a box covering more than this share of the frame is implausible, never 'tracking'.
     """
 
     lr: float
@@ -59,6 +68,17 @@ class Params:
     lost_frames: int = 3
     search_growth: float = 1.25
     search_growth_max: float = 2.5
+    track_score: float = 0.6
+    score_smoothing: float = 0.2
+    max_scale_step: float = 1.1
+    max_scale_change: float = 8.0
+    max_aspect_change: float = 4.0
+    max_frame_cover: float = 0.5
+
+    @property
+    def released(self) -> bool:
+        """`lost_score=0`: the released tracker's behaviour exactly (every runtime addition off)."""
+        return self.lost_score == 0
 
 
 LOST_KEYS = tuple(f.name for f in fields(Params) if f.name not in HP_KEYS)
@@ -75,6 +95,12 @@ _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "lost_frames": (1, None),
     "search_growth": (1.0, None),
     "search_growth_max": (1.0, None),
+    "track_score": (0.0, 1.0),
+    "score_smoothing": (0.01, 1.0),
+    "max_scale_step": (1.0, None),
+    "max_scale_change": (1.0, None),
+    "max_aspect_change": (1.0, None),
+    "max_frame_cover": (0.01, 1.0),
 }
 
 

@@ -2,7 +2,12 @@
 
 Differences from the released tracker, all switchable through parameters:
 - a lost/found state (runtime/lost.py): while lost, box centre and size stay where they were and the
-  search region grows; `lost_score=0` turns this off and gives the released behaviour exactly.
+  search region grows;
+- plausibility: the size changes by at most `max_scale_step` per frame and stays within `max_scale_change`
+  (scale) and `max_aspect_change` (aspect) of the initial box; a box held at those limits or covering more
+  than `max_frame_cover` of the frame is never 'tracking'; tracking/uncertain follow a smoothed confidence
+  with hysteresis.
+`lost_score=0` turns all of this off and gives the released behaviour exactly.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from dadiff.models import ModelNotFoundError, resolve
 from .backend import Backend
 from .config import Params, parse_geometry, resolve_params
 from .crop import crop_side, mean_colour, subwindow
-from .decode import Decoder
+from .decode import Decoder, Detection
 from .errors import InputError, ModelError
 from .frames import as_image, to_blob
 from .lost import LOST, LostMonitor
@@ -30,12 +35,15 @@ from .onnx_backend import OnnxBackend
 @dataclass(frozen=True)
 class TrackResult:
     """One frame's output. `box` is (x, y, w, h) in frame pixels; `score` the raw foreground
-    probability of the chosen cell; `latency` seconds per stage (crop, search, post, total)."""
+    probability of the chosen cell (what evaluation compares); `state` is decided on `confidence`, the
+    smoothed score, zero for an implausible box (see LostMonitor); `latency` seconds per stage
+    (crop, search, post, total)."""
 
     box: tuple[float, float, float, float]
     score: float
     state: str
     latency: dict[str, float] = field(default_factory=dict)
+    confidence: float | None = None
 
 
 def _check_box(box: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:
@@ -50,6 +58,50 @@ def _check_box(box: Sequence[float], width: int, height: int) -> tuple[float, fl
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) lies outside the {width}x{height} frame")
     return x, y, w, h
+
+
+_TINY = 1e-9  # a non-positive proposed side counts as the largest shrink
+
+
+def _reach(offset: float, slope: float, bound: float) -> float:
+    """Largest t >= 0 with |offset + t·slope| <= bound, or with it no worse where already outside."""
+    if slope > 0:
+        return max(0.0, (bound - offset) / slope)
+    if slope < 0:
+        return max(0.0, (-bound - offset) / slope)
+    return math.inf
+
+
+def bound_size(
+    size: tuple[float, float], previous: tuple[float, float], start: tuple[float, float], p: Params
+) -> tuple[float, float, bool]:
+    """The proposed (w, h) limited to what the target could plausibly have become since the last frame,
+    and whether the bounds relative to the initial box held it back.
+
+    Width and height each change by at most `max_scale_step`; then the box moves from the previous one
+    towards that, in log space, only as far as sqrt(area) stays within `max_scale_change` and w/h within
+    `max_aspect_change` of the initial box (both sets are convex and hold the previous box, so both
+    bounds hold). The network's box is low-passed by lr but still drifts: this stops the drift at a size,
+    and a network that keeps pushing against that limit is not to be trusted (the flag).
+    """
+    step = math.log(p.max_scale_step)
+    u = min(max(math.log(max(size[0], _TINY) / previous[0]), -step), step)
+    v = min(max(math.log(max(size[1], _TINY) / previous[1]), -step), step)
+    log_prev = (math.log(previous[0]), math.log(previous[1]))
+    log_start = (math.log(start[0]), math.log(start[1]))
+    scale = (log_prev[0] + log_prev[1] - log_start[0] - log_start[1]) / 2
+    aspect = (log_prev[0] - log_prev[1]) - (log_start[0] - log_start[1])
+    t = min(_reach(scale, (u + v) / 2, math.log(p.max_scale_change)),
+            _reach(aspect, u - v, math.log(p.max_aspect_change)))
+    held = t < 1.0
+    t = min(t, 1.0)
+    return previous[0] * math.exp(t * u), previous[1] * math.exp(t * v), held
+
+
+def covers_frame(size: tuple[float, float], width: int, height: int, share: float) -> bool:
+    """Whether a box of this size covers more than `share` of the frame: no target the tracker was
+    given at its usual scale becomes that, so the box has drifted onto the background."""
+    return size[0] * size[1] > share * width * height
 
 
 class Tracker:
@@ -73,6 +125,7 @@ class Tracker:
         self._feeds: dict[str, np.ndarray] | None = None
         self._centre = (0.0, 0.0)
         self._size = (0.0, 0.0)
+        self._start = (1.0, 1.0)
         self._fill: tuple[float, ...] = ()
 
     @classmethod
@@ -116,6 +169,7 @@ class Tracker:
         x, y, w, h = _check_box(box, image.shape[1], image.shape[0])
         self._centre = (x + (w - 1) / 2, y + (h - 1) / 2)
         self._size = (w, h)
+        self._start = (max(w, self.geometry.min_size), max(h, self.geometry.min_size))  # as the first clip makes it
         self._fill = mean_colour(image)
         z = self._crop(image, self.geometry.exemplar_size, self._context_side())
         self._feeds = self.backend.template(z)
@@ -137,18 +191,36 @@ class Tracker:
         t1 = time.perf_counter()
         cls, loc = self.backend.search(x, self._feeds)
         t2 = time.perf_counter()
+        img_h, img_w = image.shape[:2]
         w, h = self._size
         det = self._decode(cls, loc, w * scale, h * scale, p.penalty_k, p.window_influence)
-        state = self._monitor.observe(det.score)
+        size, plausible = self._propose_size(det, scale, img_w, img_h)
+        state = self._monitor.observe(det.score, plausible)
         cx, cy = self._centre
         if state != LOST:
-            lr = det.penalty * det.score * p.lr
             cx, cy = cx + det.dx / scale, cy + det.dy / scale
-            w, h = w * (1 - lr) + det.w / scale * lr, h * (1 - lr) + det.h / scale * lr
-        img_h, img_w = image.shape[:2]
+            w, h = size
         cx, cy = max(0.0, min(cx, img_w)), max(0.0, min(cy, img_h))
-        w, h = max(g.min_size, min(w, img_w)), max(g.min_size, min(h, img_h))
+        w, h = self._clip_size((w, h), img_w, img_h)
         self._centre, self._size = (cx, cy), (w, h)
         t3 = time.perf_counter()
         latency = {"crop": t1 - t0, "search": t2 - t1, "post": t3 - t2, "total": t3 - t0}
-        return TrackResult((cx - w / 2, cy - h / 2, w, h), det.score, state, latency)
+        return TrackResult((cx - w / 2, cy - h / 2, w, h), det.score, state, latency, self._monitor.confidence)
+
+    def _propose_size(self, det: Detection, scale: float, img_w: int, img_h: int) -> tuple[tuple[float, float], bool]:
+        """The size this detection leads to (released lr blend, then the bounds and the frame clip) and
+        whether it is plausible; applied only when the frame is not lost."""
+        p = self.params
+        w, h = self._size
+        lr = det.penalty * det.score * p.lr
+        size = (w * (1 - lr) + det.w / scale * lr, h * (1 - lr) + det.h / scale * lr)
+        if p.released:
+            return self._clip_size(size, img_w, img_h), True
+        bw, bh, held = bound_size(size, self._size, self._start, p)
+        size = self._clip_size((bw, bh), img_w, img_h)
+        return size, not held and not covers_frame(size, img_w, img_h, p.max_frame_cover)
+
+    def _clip_size(self, size: tuple[float, float], img_w: int, img_h: int) -> tuple[float, float]:
+        """The released clip: at least `min_size`, never larger than the frame."""
+        low = self.geometry.min_size
+        return max(low, min(size[0], img_w)), max(low, min(size[1], img_h))

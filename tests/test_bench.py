@@ -12,6 +12,7 @@ import pytest
 
 from dadiff.runtime import bench_cli
 from dadiff.runtime.bench import STAGES
+from dadiff.runtime.evaluation.evaluate import DEFAULT_NANO_DIR, nano_available
 from runtime_models import write_corr_model
 
 
@@ -56,6 +57,33 @@ def test_torch_comparison_and_step_sweep(lite_checkpoint: Path, lite_model_dir: 
     assert first["torch"]["torch_eager"]["p50"] > 0 and first["torch"]["ort"]["p50"] > 0
     assert (first["ddim_steps"], k1["ddim_steps"]) == (2, 1)
     assert first["gflop_search"] > k1["gflop_search"] > 0  # one denoiser call less
+
+
+def test_nano_row_and_ratio(model_dir: Path, capsys) -> None:
+    if not nano_available():
+        pytest.skip(f"NanoTrack v2 weights not found in {DEFAULT_NANO_DIR} (or cv2.TrackerNano missing)")
+    argv = [str(model_dir), "--frames", "6", "--clip", "5", "--warmup", "1", "--threads", "1", "--nano",
+            "--success", "1", "--success-frames", "5"]
+    assert bench_cli.main(argv) == 0
+    out = capsys.readouterr().out
+    header, columns = out.splitlines()[:2]
+    assert "avx2 " in header and "avx512f " in header and "avx512_vnni " in header
+    assert "TrackerNano (NanoTrack v2, OpenCV " in columns
+    fps = next(line for line in out.splitlines() if line.startswith("FPS end to end"))
+    assert len(fps.split()) == 7 and fps.endswith("x)")  # ours, then TrackerNano with its ratio
+    assert "runs at" in out and "TrackerNano's frame rate" in out
+    report = _report(capsys, [*argv, "--no-nano"])
+    assert "nano" not in report and set(report["machine"]["flags"]) == {"avx2", "avx512f", "avx512_vnni"}
+    report = _report(capsys, argv)
+    nano = report["nano"]
+    assert nano["fps"] > 0 and nano["tracker"]["p50"] > 0 and nano["night"]["sequences"] == 1
+    assert nano["ratio"]["fps"] == pytest.approx(report["results"][0]["fps"] / nano["fps"])
+
+
+def test_nano_without_weights_is_one_line(model_dir: Path, tmp_path: Path, capsys) -> None:
+    assert bench_cli.main([str(model_dir), "--nano", "--nano-dir", str(tmp_path), "--frames", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "nanotrack_backbone_sim.onnx" in err
 
 
 def test_peak_is_measured(model_dir: Path, capsys) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from dadiff.runtime.config import Params
@@ -16,7 +17,10 @@ PARAMS = Params(
     lost_frames=3,
     search_growth=1.25,
     search_growth_max=2.5,
+    score_smoothing=1.0,  # the raw score decides, one threshold: the lost/found logic on its own
+    track_score=0.5,
 )
+SMOOTHED = Params(lr=0.4, penalty_k=0.1, window_influence=0.4)  # the runtime defaults
 
 
 def _run(scores: list[float], params: Params = PARAMS) -> tuple[list[str], list[float]]:
@@ -26,6 +30,10 @@ def _run(scores: list[float], params: Params = PARAMS) -> tuple[list[str], list[
         states.append(monitor.observe(s))
         growth.append(round(monitor.growth, 4))
     return states, growth
+
+
+def _flips(states: list[str]) -> int:
+    return sum(a != b for a, b in zip(states, states[1:], strict=False))
 
 
 def test_states_and_sawtooth_growth() -> None:
@@ -64,3 +72,49 @@ def test_growth_never_exceeds_the_cap(cap: float) -> None:
     params = Params(lr=0.4, penalty_k=0.1, window_influence=0.4, lost_frames=1, search_growth_max=cap)
     _, growth = _run([0.0] * 10, params)
     assert max(growth) <= cap
+
+
+def test_scores_hovering_at_the_threshold_do_not_flip_the_state() -> None:
+    # Frame-to-frame flicker between 0.35 and 0.65 around uncertain_score 0.5, as on a static scene.
+    rng = np.random.default_rng(0)
+    scores = list(rng.uniform(0.35, 0.65, 100))
+    raw, _ = _run(scores, PARAMS)
+    smoothed, _ = _run(scores, SMOOTHED)
+    assert _flips(raw) > 20  # one threshold on the raw score flips at frame rate
+    assert _flips(smoothed) <= 2
+
+
+def test_hysteresis_enter_high_leave_low() -> None:
+    monitor = LostMonitor(SMOOTHED)
+    for _ in range(40):
+        monitor.observe(0.3)
+    assert monitor.state == "uncertain" and monitor.confidence == pytest.approx(0.3, abs=1e-3)
+    states = [monitor.observe(0.9) for _ in range(6)]
+    assert states[:2] == ["uncertain"] * 2 and states[-1] == "tracking"  # entering waits for the confidence
+    for _ in range(40):
+        assert monitor.observe(0.55) == "tracking"  # 0.55 keeps it: above the leaving threshold (0.5)
+    for _ in range(40):
+        monitor.observe(0.3)
+    for _ in range(40):  # but does not enter it: below the entering threshold (0.6)
+        assert monitor.observe(0.55) == "uncertain"
+
+
+def test_a_clear_failure_leaves_tracking_at_once() -> None:
+    monitor = LostMonitor(SMOOTHED)
+    for _ in range(10):
+        monitor.observe(0.95)
+    assert monitor.observe(0.1) == "uncertain"  # below lost_score: no smoothing delay
+    assert monitor.confidence > 0.5
+
+
+def test_implausible_box_is_never_tracking() -> None:
+    monitor = LostMonitor(SMOOTHED)
+    states = [monitor.observe(0.999, plausible=False) for _ in range(20)]
+    assert set(states) == {"uncertain"} and monitor.confidence < 0.05
+    assert monitor.growth == 1.0  # the box still follows the network: it may shrink back
+
+
+def test_released_params_use_the_raw_score() -> None:
+    params = Params(lr=0.4, penalty_k=0.1, window_influence=0.4, lost_score=0.0)
+    states, _ = _run([0.9, 0.4, 0.9, 0.4], params)
+    assert states == ["tracking", "uncertain", "tracking", "uncertain"]
