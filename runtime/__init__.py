@@ -1,18 +1,29 @@
-"""dadiff.runtime: torch-free tracker on onnxruntime (`Tracker.load(...)`, then `init` and `update`)."""
+"""dadiff.runtime: torch-free tracker on onnxruntime (`Tracker.load(...)`, then `init` and `update`).
 
-from .backend import Backend
-from .config import Geometry, Params
-from .errors import InputError, ModelError
-from .onnx_backend import OnnxBackend
-from .tracker import Tracker, TrackResult
+The names below load on first use, so that code needing only the crop or the evaluation helpers (training on
+a machine without onnxruntime, say) can import its modules without pulling onnxruntime in.
+"""
 
-__all__ = [
-    "Backend",
-    "Geometry",
-    "InputError",
-    "ModelError",
-    "OnnxBackend",
-    "Params",
-    "TrackResult",
-    "Tracker",
-]
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "Backend": ".backend",
+    "Geometry": ".config",
+    "Params": ".config",
+    "InputError": ".errors",
+    "ModelError": ".errors",
+    "OnnxBackend": ".onnx_backend",
+    "Tracker": ".tracker",
+    "TrackResult": ".tracker",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_EXPORTS[name], __name__), name)
