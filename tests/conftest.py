@@ -70,3 +70,11 @@ def no_shipped_model(tmp_path, monkeypatch) -> None:
     empty = tmp_path / "no-models"
     empty.mkdir()
     monkeypatch.setattr(dadiff.models, "_HERE", empty)
+
+
+def random_crops():
+    """A seeded random template (127) and search (255) crop, raw pixels 0..255, as torch tensors."""
+    import torch
+
+    g = torch.Generator().manual_seed(0)
+    return torch.rand(1, 3, 127, 127, generator=g) * 255, torch.rand(1, 3, 255, 255, generator=g) * 255

@@ -11,13 +11,16 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dadiff.drone.follow import AUTOPILOT_ARDUPILOT, AUTOPILOT_PX4
 from dadiff.drone.mav import mavlink, mavutil
 from dadiff.runtime.sources import Frame
+
+if TYPE_CHECKING:
+    from dadiff.drone.service import Service
 
 WIDTH, HEIGHT = 640, 480
 
@@ -455,3 +458,21 @@ class Rig:
         assert reply is not None and reply.result == mavlink.MAV_RESULT_ACCEPTED
         assert wait_until(lambda: len(self.tracker.inits) > 0 and len(self.tracker.updates) > 2, 5)
         return reply
+
+
+class Running:
+    """A service running in a thread for the length of a `with` block; it must stop when the block ends."""
+
+    def __init__(self, service: Service) -> None:
+        self.service = service
+        self.thread = threading.Thread(target=service.run, daemon=True)
+
+    def __enter__(self) -> Service:
+        self.thread.start()
+        assert self.service.started.wait(5)
+        return self.service
+
+    def __exit__(self, *exc: object) -> None:
+        self.service.stop()
+        self.thread.join(10)
+        assert not self.thread.is_alive()

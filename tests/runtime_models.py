@@ -215,3 +215,19 @@ def write_corr_model(
                 props[key] = value
         onnx.save(_model(graph, props), str(folder / f"{name}.onnx"))
     return folder
+
+
+# The geometry and released hyper-parameters of a stride-8 model, as metadata strings (fake backends).
+STRIDE8_META = {
+    "dadiff_format": "1",
+    "exemplar_size": "127",
+    "instance_size": "255",
+    "stride": "8",
+    "score_size": "25",
+    "point_origin": "-96",
+    "context_amount": "0.5",
+    "min_size": "10",
+    "penalty_k": "0.088",
+    "window_influence": "0.401",
+    "lr": "0.473",
+}

@@ -16,29 +16,11 @@ from dadiff.drone.camera import CameraSettings
 from dadiff.drone.link import LinkSettings
 from dadiff.drone.mav import mavlink
 from dadiff.drone.service import Service, ServiceSettings
-from drone_peers import FakeTracker, GroundStation, Peer, Rig, SourceFactory, free_port, rate, wait_until
+from drone_peers import FakeTracker, GroundStation, Peer, Rig, Running, SourceFactory, free_port, rate, wait_until
 
 ACCEPTED, UNSUPPORTED = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_UNSUPPORTED
 REQUEST = mavlink.MAV_CMD_REQUEST_MESSAGE
 STATUS = "CAMERA_TRACKING_IMAGE_STATUS"
-
-
-class Running:
-    def __init__(self, service: Service) -> None:
-        self.service = service
-
-    def __enter__(self) -> Service:
-        import threading
-
-        self.thread = threading.Thread(target=self.service.run, daemon=True)
-        self.thread.start()
-        assert self.service.started.wait(5)
-        return self.service
-
-    def __exit__(self, *exc: object) -> None:
-        self.service.stop()
-        self.thread.join(10)
-        assert not self.thread.is_alive()
 
 
 def test_speaks_first_and_adopts_the_autopilot_id(caplog: pytest.LogCaptureFixture) -> None:

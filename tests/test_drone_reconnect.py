@@ -11,25 +11,9 @@ from dadiff.drone.follow import FollowConfig
 from dadiff.drone.link import LinkSettings
 from dadiff.drone.service import Service, ServiceSettings
 from dadiff.drone.systemd import Notifier
-from drone_peers import Autopilot, FakeTracker, Rig, SourceFactory, free_port, rate, wait_until
+from drone_peers import Autopilot, FakeTracker, Rig, Running, SourceFactory, free_port, rate, wait_until
 
 FAST = {"retry_min": 0.1, "retry_max": 0.4, "silence_timeout": 1.5}
-
-
-class Running:
-    def __init__(self, service: Service) -> None:
-        self.service = service
-        self.thread = threading.Thread(target=service.run, daemon=True)
-
-    def __enter__(self) -> Service:
-        self.thread.start()
-        assert self.service.started.wait(5)
-        return self.service
-
-    def __exit__(self, *exc: object) -> None:
-        self.service.stop()
-        self.thread.join(10)
-        assert not self.thread.is_alive()
 
 
 def camera_beats(peer: Autopilot, since: float = 0.0) -> list:

@@ -8,6 +8,7 @@ torch = pytest.importorskip("torch")
 
 from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
+from conftest import random_crops  # noqa: E402
 from dadiff.export.config import lite_config  # noqa: E402
 from dadiff.export.denoiser import ddim_timesteps  # noqa: E402
 from dadiff.export.network import build_model  # noqa: E402
@@ -21,13 +22,8 @@ def lite():
     return build_model(lite_config()).eval()
 
 
-def crops() -> tuple[torch.Tensor, torch.Tensor]:
-    g = torch.Generator().manual_seed(0)
-    return torch.rand(1, 3, 127, 127, generator=g) * 255, torch.rand(1, 3, 255, 255, generator=g) * 255
-
-
 def test_search_frame_within_flop_budget(lite):
-    z, x = crops()
+    z, x = random_crops()
     with torch.no_grad():
         _, kcls, kloc = lite.template_kernels(z)
 
@@ -42,7 +38,7 @@ def test_search_frame_within_flop_budget(lite):
 
 
 def test_outputs_shapes_and_determinism(lite):
-    z, x = crops()
+    z, x = random_crops()
     with torch.no_grad():
         a = lite(z, x)
         b = lite(z, x)

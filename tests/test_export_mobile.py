@@ -9,6 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from conftest import random_crops  # noqa: E402
 from dadiff.export.checkpoint import detect_family, load_checkpoint, save_checkpoint  # noqa: E402
 from dadiff.export.config import mobile_config  # noqa: E402
 from dadiff.export.network import build_model  # noqa: E402
@@ -24,13 +25,8 @@ def mobile():
     return build_model(mobile_config(), pretrained_backbone=True).eval()
 
 
-def crops() -> tuple[torch.Tensor, torch.Tensor]:
-    g = torch.Generator().manual_seed(0)
-    return torch.rand(1, 3, 127, 127, generator=g) * 255, torch.rand(1, 3, 255, 255, generator=g) * 255
-
-
 def test_search_frame_with_dadiff_within_budget(mobile):
-    z, x = crops()
+    z, x = random_crops()
     with torch.no_grad():
         _, kcls, kloc = mobile.template_kernels(z)
     per_frame = count_gflop(SearchGraph(mobile), x, *kcls, *kloc)
@@ -39,7 +35,7 @@ def test_search_frame_with_dadiff_within_budget(mobile):
 
 
 def test_geometry_is_stride_16_and_centred(mobile):
-    z, x = crops()
+    z, x = random_crops()
     with torch.no_grad():
         zf, kcls, _ = mobile.template_kernels(z)
         cls, loc = mobile.track(x, *mobile.head.kernels(zf))

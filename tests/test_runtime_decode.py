@@ -14,6 +14,7 @@ import pytest
 
 from dadiff.runtime import Backend, Tracker
 from dadiff.runtime.decode import Decoder, foreground_score, hann_window, size_penalty
+from runtime_models import STRIDE8_META
 
 
 def _maps(size: int, cell: tuple[int, int], logit: float, ltrb: tuple[float, ...]) -> tuple[np.ndarray, ...]:
@@ -64,26 +65,13 @@ def test_hann_window_matches_definition() -> None:
     np.testing.assert_allclose(hann_window(n), np.outer(h, h), atol=1e-15)
 
 
-META = {
-    "dadiff_format": "1",
-    "exemplar_size": "127",
-    "instance_size": "255",
-    "stride": "8",
-    "score_size": "25",
-    "point_origin": "-96",
-    "context_amount": "0.5",
-    "min_size": "10",
-    "penalty_k": "0.088",
-    "window_influence": "0.401",
-    "lr": "0.473",
-}
 
 
 class RandomBackend:
     """Seeded random head outputs, independent of the crops; records the calls it gets."""
 
     def __init__(self, seed: int = 0) -> None:
-        self.meta = dict(META)
+        self.meta = dict(STRIDE8_META)
         self.rng = np.random.default_rng(seed)
         self.calls: list[tuple[str, tuple[int, ...]]] = []
         self.outputs: list[tuple[np.ndarray, np.ndarray]] = []

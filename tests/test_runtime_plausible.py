@@ -10,20 +10,8 @@ import pytest
 from dadiff.runtime import Tracker
 from dadiff.runtime.config import Params
 from dadiff.runtime.tracker import bound_size
+from runtime_models import STRIDE8_META
 
-META = {
-    "dadiff_format": "1",
-    "exemplar_size": "127",
-    "instance_size": "255",
-    "stride": "8",
-    "score_size": "25",
-    "point_origin": "-96",
-    "context_amount": "0.5",
-    "min_size": "10",
-    "penalty_k": "0.088",
-    "window_influence": "0.401",
-    "lr": "0.473",
-}
 CENTRE = (12, 12)  # the cell at the crop centre (point (0, 0))
 
 
@@ -32,7 +20,7 @@ class ScriptedBackend:
     box of `half` crop pixels either side of its point: no motion, a size the test chooses."""
 
     def __init__(self, scores: list[float], half: float) -> None:
-        self.meta = dict(META)
+        self.meta = dict(STRIDE8_META)
         self.scores, self.half, self.calls = scores, half, 0
 
     def template(self, z: np.ndarray) -> dict[str, np.ndarray]:
