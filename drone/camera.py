@@ -310,8 +310,9 @@ class CameraComponent:
             result, extra = mavlink.MAV_RESULT_FAILED, []
         if result is None:
             return []
-        if result != ACCEPTED:
-            log.info("command %d %s: result %d", m.command, tuple(round(p, 4) for p in params[:5]), result)
+        if result != ACCEPTED:  # throttled per command: a flood of bad commands must not flood the log
+            self._throttle.log(logging.INFO, f"result{m.command}", "command %d %s: result %d", m.command,
+                               tuple(round(p, 4) for p in params[:5]), result)
         return [self._ack(m, result), *extra]
 
     def _ack(self, msg: Any, result: int) -> Any:
@@ -425,7 +426,7 @@ class CameraComponent:
             return (None if broadcast else UNSUPPORTED), []
         if not self.stream.set_interval_us(p[1], now):
             return DENIED, []
-        log.info("275 interval set to %d us", self.stream.interval_us)
+        self._throttle.log(logging.INFO, "interval", "275 interval set to %d us", self.stream.interval_us)
         return ACCEPTED, []
 
     def _get_interval(self, p: Sequence[float], broadcast: bool, now: float) -> Reply:

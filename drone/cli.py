@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import signal
 import sys
 import threading
@@ -73,6 +74,35 @@ def _stream_url(text: str) -> str:
     return url
 
 
+NETWORK_SCHEMES = ("udpin", "udpout", "udpbcast", "udp", "tcp", "tcpin", "mcast")
+SOCKET_SCHEMES = ("uds", "unix")
+CONN_FORMS = "udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or a serial port /dev/ttyX[,BAUD]"
+
+
+def _network_ok(rest: str) -> bool:
+    host, sep, port = rest.rpartition(":")
+    return bool(sep and host.strip() and port.isdigit() and 1 <= int(port) <= 65535)
+
+
+def _serial_ok(text: str) -> bool:
+    device, sep, baud = text.partition(",")
+    if sep and not (baud.isdigit() and int(baud) > 0):
+        return False
+    return device.startswith("/dev/") and len(device) > 5 or bool(re.fullmatch(r"COM\d+", device, re.IGNORECASE))
+
+
+def mavlink_conn(text: str) -> str:
+    """argparse type: a connection string pymavlink opens as a link (it opens anything else as a log file,
+    so `foo:bar` used to run without any link)."""
+    spec = text.strip()
+    scheme, sep, rest = spec.partition(":")
+    ok = (sep and scheme in NETWORK_SCHEMES and _network_ok(rest)) or (
+        sep and scheme in SOCKET_SCHEMES and rest.strip()) or _serial_ok(spec)
+    if not ok:
+        raise argparse.ArgumentTypeError(f"expected {CONN_FORMS}, got {text!r}")
+    return spec
+
+
 def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     """The MAVLink, follow, service and logging options (and --config); adding them twice is a no-op."""
     if "--mavlink" in parser._option_string_actions:
@@ -87,12 +117,14 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("MAVLink camera component (companion computer)")
     g.add_argument(
         "--mavlink",
+        type=mavlink_conn,
         metavar="CONN",
         help="run as a MAVLink camera on this pymavlink connection: udpin:0.0.0.0:14560, "
         "udpout:HOST:PORT, tcp:HOST:PORT, or a serial port /dev/ttyAMA0,921600. Without --init, "
         "tracking starts when a ground station sends a track command",
     )
-    g.add_argument("--dialect", choices=("ardupilotmega", "common"), default="ardupilotmega", help="MAVLink dialect")
+    g.add_argument("--dialect", choices=("ardupilotmega", "common"), default="ardupilotmega",
+                   help="MAVLink dialect (default: ardupilotmega)")
     g.add_argument(
         "--sysid",
         type=_int_in(1, 254),
@@ -158,23 +190,33 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
         "centred and at its starting size, only while armed in ArduCopter GUIDED or PX4 OFFBOARD; gimbal: "
         "point the gimbal at the target through the MAVLink gimbal manager (takes primary control)",
     )
-    f.add_argument("--follow-rate", type=_float_in(10, 20), default=15.0, metavar="HZ", help="setpoint rate")
-    f.add_argument("--max-speed", type=_float_in(0, 20, open_low=True), default=3.0, metavar="M/S")
-    f.add_argument("--max-climb", type=_float_in(0, 10, open_low=True), default=1.0, metavar="M/S")
-    f.add_argument("--max-yaw-rate", type=_float_in(0, 360, open_low=True), default=45.0, metavar="DEG/S")
-    f.add_argument("--max-accel", type=_float_in(0, 20, open_low=True), default=2.0, metavar="M/S2")
+    f.add_argument("--follow-rate", type=_float_in(10, 20), default=15.0, metavar="HZ",
+                   help="setpoint rate, 10-20 (default 15)")
+    f.add_argument("--max-speed", type=_float_in(0, 20, open_low=True), default=3.0, metavar="M/S",
+                   help="horizontal speed limit (default 3)")
+    f.add_argument("--max-climb", type=_float_in(0, 10, open_low=True), default=1.0, metavar="M/S",
+                   help="vertical speed limit with --follow-altitude (default 1)")
+    f.add_argument("--max-yaw-rate", type=_float_in(0, 360, open_low=True), default=45.0, metavar="DEG/S",
+                   help="yaw rate limit (default 45)")
+    f.add_argument("--max-accel", type=_float_in(0, 20, open_low=True), default=2.0, metavar="M/S2",
+                   help="acceleration limit (default 2)")
     f.add_argument(
         "--follow-altitude", action="store_true", help="also climb or descend to centre the target (default: hold)"
     )
-    f.add_argument("--yaw-gain", type=_float_in(0, 10), default=1.0, help="rad/s per unit horizontal error")
-    f.add_argument("--lateral-gain", type=_float_in(0, 10), default=0.0, help="m/s per unit horizontal error")
-    f.add_argument("--forward-gain", type=_float_in(0, 20), default=2.0, help="m/s per unit log-size error")
-    f.add_argument("--vertical-gain", type=_float_in(0, 10), default=1.0, help="m/s per unit vertical error")
+    f.add_argument("--yaw-gain", type=_float_in(0, 10), default=1.0,
+                   help="rad/s per unit horizontal error (default 1)")
+    f.add_argument("--lateral-gain", type=_float_in(0, 10), default=0.0,
+                   help="m/s per unit horizontal error (default 0)")
+    f.add_argument("--forward-gain", type=_float_in(0, 20), default=2.0,
+                   help="m/s per unit log-size error (default 2)")
+    f.add_argument("--vertical-gain", type=_float_in(0, 10), default=1.0,
+                   help="m/s per unit vertical error (default 1)")
     f.add_argument(
         "--gimbal-rate", type=_float_in(10, 50), default=20.0, metavar="HZ", help="gimbal setpoint rate (default 20)"
     )
     f.add_argument(
-        "--gimbal-gain", type=_float_in(0, 10, open_low=True), default=1.0, help="gimbal rad/s per unit offset"
+        "--gimbal-gain", type=_float_in(0, 10, open_low=True), default=1.0,
+        help="gimbal rad/s per unit offset (default 1)",
     )
     f.add_argument(
         "--max-gimbal-rate", type=_float_in(0, 360, open_low=True), default=60.0, metavar="DEG/S",
@@ -186,9 +228,12 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     s = parser.add_argument_group("service logging")
     s.add_argument("--log-file", type=Path, metavar="FILE", help="also log to this rotating file")
-    s.add_argument("--log-max-bytes", type=_int_in(10_000, 10**10), default=10_000_000, metavar="N")
-    s.add_argument("--log-backups", type=_int_in(0, 100), default=5, metavar="N")
-    s.add_argument("--log-level", choices=("DEBUG", "INFO", "WARNING", "ERROR"), default="INFO")
+    s.add_argument("--log-max-bytes", type=_int_in(10_000, 10**10), default=10_000_000, metavar="N",
+                   help="rotate the log file at this size (default 10000000)")
+    s.add_argument("--log-backups", type=_int_in(0, 100), default=5, metavar="N",
+                   help="rotated log files kept (default 5)")
+    s.add_argument("--log-level", choices=("DEBUG", "INFO", "WARNING", "ERROR"), default="INFO",
+                   help="(default: INFO)")
 
 
 def _error(message: object) -> int:
@@ -269,8 +314,9 @@ def run_mavlink(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, video: str) -> int:
+    from dadiff.runtime.cli import warn_int8
     from dadiff.runtime.errors import InputError, ModelError
-    from dadiff.runtime.outputs import OutputError, Sink, TrackLog, VideoSink
+    from dadiff.runtime.outputs import OutputError, Sink, TrackLog, VideoSink, check_distinct
     from dadiff.runtime.sources import open_source
     from dadiff.runtime.tracker import Tracker
 
@@ -280,6 +326,8 @@ def _run(args: argparse.Namespace, video: str) -> int:
 
     sinks: list[Sink] = []
     try:
+        output, save_video = getattr(args, "output", None), getattr(args, "save_video", None)
+        check_distinct(video, {"--output": output, "--save-video": save_video})
         key = load_key(args.signing_key) if args.signing_key is not None else None
         tracker = Tracker.load(
             getattr(args, "model", None),
@@ -288,7 +336,7 @@ def _run(args: argparse.Namespace, video: str) -> int:
             preset=getattr(args, "preset", None),
             overrides=getattr(args, "hp", None) or None,
         )
-        output, save_video = getattr(args, "output", None), getattr(args, "save_video", None)
+        warn_int8(tracker)
         if output is not None:
             sinks.append(TrackLog(output))
         if save_video is not None:

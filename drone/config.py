@@ -71,6 +71,8 @@ def config_defaults(parser: argparse.ArgumentParser, path: Path) -> dict[str, An
         raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (TOML must be UTF-8)") from None
     options = _options(parser)
     values: dict[str, Any] = {}
     for key, value in table.items():

@@ -63,6 +63,61 @@ def _drop_partial_frame(mav: Any) -> None:
     mav.expected_length = mavlink.HEADER_LEN_V1 + 2
 
 
+MAX_FRAME = 280  # MAVLink 2: 10 header + 255 payload + 2 CRC + 13 signature bytes
+MAX_RESYNC = 64  # frame starts tried in one damaged datagram before the rest is dropped (bounds the work)
+MAGIC = (mavlink.PROTOCOL_MARKER_V1, mavlink.PROTOCOL_MARKER_V2)
+
+
+def _one_frame(mav: Any, data: bytes) -> tuple[Any | None, int]:
+    """(message or None, bytes it took) for a frame starting at data[0]."""
+    _drop_partial_frame(mav)
+    chunk = data[:MAX_FRAME]
+    msg = mav.parse_char(chunk)
+    if msg is None or msg.get_type() == "BAD_DATA":
+        return None, 0
+    return msg, max(1, len(chunk) - mav.buf_len())  # buf_len: what is left unparsed of the chunk
+
+
+def _resync(mav: Any, data: bytes) -> list[Any]:
+    """Every valid frame of a damaged datagram, trying each start byte in turn (junk before, between or
+    after frames no longer costs the good ones); the junk is reported as one BAD_DATA per run."""
+    out: list[Any] = []
+    pos, junk_from, tries = 0, None, 0
+    while pos < len(data) and tries <= MAX_RESYNC:
+        msg, used = _one_frame(mav, data[pos:]) if data[pos] in MAGIC else (None, 0)
+        tries += data[pos] in MAGIC and msg is None
+        if msg is None:
+            junk_from = pos if junk_from is None else junk_from
+            pos += 1
+            continue
+        if junk_from is not None:
+            out.append(mavlink.MAVLink_bad_data(bytearray(data[junk_from:pos]), "junk between frames"))
+            junk_from = None
+        out.append(msg)
+        pos += used
+    if junk_from is not None or pos < len(data):
+        start = junk_from if junk_from is not None else pos
+        out.append(mavlink.MAVLink_bad_data(bytearray(data[start:]), "junk after the last frame"))
+    _drop_partial_frame(mav)
+    return out
+
+
+def parse_datagram(mav: Any, data: bytes) -> list[Any]:
+    """The messages (and BAD_DATA) of one UDP datagram: pymavlink's parse, and when that found nothing but
+    damage, a frame-by-frame resync (junk holding a 0xFD byte used to swallow the good frame after it)."""
+    parsed = mav.parse_buffer(data) or []
+    partial = mav.buf_len() > 0
+    _drop_partial_frame(mav)
+    damaged = [m for m in parsed if m.get_type() == "BAD_DATA"]
+    framed = partial or any("CRC" in getattr(m, "reason", "") or "length" in getattr(m, "reason", "")
+                            for m in damaged)
+    if not framed or len(damaged) < len(parsed):
+        # clean, refused by signing (decoding again would count it twice), or some frames decoded (never
+        # decoded twice: signing would take the second for a replay)
+        return parsed
+    return _resync(mav, data)
+
+
 class Link:
     def __init__(self, settings: LinkSettings) -> None:
         self.settings = settings
@@ -185,9 +240,7 @@ class Link:
             data = conn.recv()
             if not data:
                 break
-            parsed = conn.mav.parse_buffer(data) or []
-            _drop_partial_frame(conn.mav)
-            for msg in parsed:
+            for msg in parse_datagram(conn.mav, data):
                 if msg.get_type() != "BAD_DATA":
                     conn.post_message(msg)
                 msgs.append(msg)

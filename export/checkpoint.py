@@ -17,7 +17,7 @@ import torch
 
 from dadiff.runtime.ort_cache import file_sha256
 
-from .config import FAMILIES, ModelConfig, default_config
+from .config import FAMILIES, ModelConfig, default_config, validate_config
 from .network import DaDiffNet, build_model
 
 FORMAT_VERSION = 1
@@ -151,7 +151,11 @@ def load_checkpoint(path: str | Path, family: str | None = None, steps: int | No
         if preset not in cfg.tracker.hp_presets:
             raise CheckpointError(f"{p}: unknown preset {preset!r}; known: {', '.join(sorted(cfg.tracker.hp_presets))}")
         cfg = replace(cfg, tracker=replace(cfg.tracker, default_preset=preset))
-    model = build_model(cfg)
+    try:
+        validate_config(cfg)
+        model = build_model(cfg)
+    except (TypeError, ValueError, RuntimeError) as e:
+        raise CheckpointError(f"{p}: invalid model config: {e}") from None
     load_state_dict_strict(model, sd, p)
     model.eval()
     return LoadedCheckpoint(model, cfg, source, file_sha256(p), extra)

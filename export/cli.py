@@ -7,71 +7,120 @@ quantised as well: export/quantize.py.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from dadiff.models import ModelNotFoundError, resolve
+from dadiff.runtime.errors import OneLineParser
 from dadiff.runtime.sources import SourceError, open_source, parse_box
 
-from .checkpoint import CheckpointError, load_checkpoint
 from .config import FAMILIES, HP_PRESETS
-from .onnx_export import DEFAULT_OPSET, PARITY_TOLERANCE, SUPPORTED_OPSETS, ExportError, export_model
-from .quantize import (
+from .defaults import (
     DEFAULT_BENCH_RUNS,
     DEFAULT_CALIBRATION_FRAMES,
     DEFAULT_EVAL_FRAMES,
     DEFAULT_EVAL_SEQUENCES,
+    DEFAULT_OPSET,
     DEFAULT_RECIPE,
+    PARITY_TOLERANCE,
     PRECISIONS,
-    RECIPES,
-    QuantizeError,
-    QuantizeReport,
-    QuantizeSettings,
-    quantize_model,
+    SUPPORTED_OPSETS,
 )
+
+if TYPE_CHECKING:  # torch and onnx load after the arguments are checked (--help stays fast)
+    from .quantize import QuantizeReport, QuantizeSettings
+
+EXPORT_EXTRA = 'pip install "dadiff[export]"'
+
+
+class UserError(Exception):
+    """A problem the user can fix; main prints it as one line and exits 2."""
+
 
 PROG = "dadiff-export"
 
 
+def _tolerance(text: str) -> float:
+    """argparse type: a finite tolerance >= 0 (nan would switch the parity gate off, a negative one fail it late)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
+
+
+def _count(low: int) -> Any:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = low - 1
+        if value < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}")
+        return value
+
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = OneLineParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                      epilog="Exit codes: 0 written, 1 parity check failed (no files written), 2 bad input (one "
+                             f"'{PROG}: error:' line).")
     p.add_argument("checkpoint", help="released DaDiff-BAN checkpoint (.pth) or a dadiff checkpoint (.pt); with "
                                       "--quantize also an fp32 model folder or shipped model name")
     p.add_argument("-o", "--output", help="output model folder (default: ./<name>; ./<name>-int8 with --quantize)")
     p.add_argument("--name", help="model name stored in the metadata (default: the checkpoint's file stem)")
-    p.add_argument("--steps", type=int, help="DDIM steps K to unroll (default: the checkpoint's, 2)")
+    p.add_argument("--steps", type=int, help="DDIM steps K to unroll, 1..20 (default: the checkpoint's, 2)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1} (default {DEFAULT_OPSET})")
-    p.add_argument("--family", choices=FAMILIES, help="require this model family")
+    p.add_argument("--family", choices=FAMILIES, help="require this model family (default: any)")
     p.add_argument("--preset", choices=sorted(HP_PRESETS),
                    help="hyper-parameter preset the runtime uses by default (default: the checkpoint's)")
-    p.add_argument("--tolerance", type=float, default=PARITY_TOLERANCE,
-                   help=f"max-abs torch/onnxruntime difference allowed (default {PARITY_TOLERANCE:g})")
+    p.add_argument("--tolerance", type=_tolerance, default=PARITY_TOLERANCE,
+                   help=f"max-abs torch/onnxruntime difference allowed, >= 0 (default {PARITY_TOLERANCE:g})")
     _add_quantize_options(p)
     return p
 
 
 def _add_quantize_options(p: argparse.ArgumentParser) -> None:
     q = p.add_argument_group("int8 quantisation (writes OUT = fp32 template.onnx + int8 search.onnx)")
-    q.add_argument("--quantize", metavar="PRECISION", help="quantise the search graph: int8")
+    q.add_argument("--quantize", metavar="PRECISION", help="quantise the search graph: int8 (default: fp32 only)")
     q.add_argument("--calibration", metavar="SRC",
                    help="video file or sequence folder to calibrate on (default: generated night scenes of the "
                         "training photos)")
     q.add_argument("--calibration-init", metavar="X,Y,W,H",
                    help="target box in the first frame of --calibration when it has no ground-truth file")
-    q.add_argument("--calibration-frames", type=int, default=DEFAULT_CALIBRATION_FRAMES, metavar="N",
+    q.add_argument("--calibration-frames", type=_count(1), default=DEFAULT_CALIBRATION_FRAMES, metavar="N",
                    help=f"search crops to calibrate on (default {DEFAULT_CALIBRATION_FRAMES})")
-    q.add_argument("--eval-sequences", type=int, default=DEFAULT_EVAL_SEQUENCES, metavar="N",
+    q.add_argument("--eval-sequences", type=_count(1), default=DEFAULT_EVAL_SEQUENCES, metavar="N",
                    help="sequences of the generated night test set used to compare fp32 and int8 "
                         f"(default {DEFAULT_EVAL_SEQUENCES})")
-    q.add_argument("--eval-frames", type=int, default=DEFAULT_EVAL_FRAMES, metavar="N",
+    q.add_argument("--eval-frames", type=_count(2), default=DEFAULT_EVAL_FRAMES, metavar="N",
                    help=f"frames per evaluation sequence (default {DEFAULT_EVAL_FRAMES})")
-    q.add_argument("--recipe", default=DEFAULT_RECIPE, choices=sorted(RECIPES),
+    q.add_argument("--recipe", default=DEFAULT_RECIPE,
                    help=f"which parts stay in float (default {DEFAULT_RECIPE}; see export/quantize.py RECIPES)")
-    q.add_argument("--bench-runs", type=int, default=DEFAULT_BENCH_RUNS, metavar="N",
+    q.add_argument("--bench-runs", type=_count(0), default=DEFAULT_BENCH_RUNS, metavar="N",
                    help=f"search-graph runs per precision for the latency comparison, 0 to skip "
                         f"(default {DEFAULT_BENCH_RUNS})")
+    q.add_argument("--reduce-range", action=argparse.BooleanOptionalAction, default=None,
+                   help="7-bit weights, as onnxruntime advises for x86 CPUs without VNNI (default: on exactly "
+                        "when this CPU lacks AVX-512 VNNI / AVX-VNNI)")
+
+
+def _split_negative_box(argv: list[str]) -> list[str]:
+    """`--calibration-init -5,-5,15,9` as `--calibration-init=-5,...`: argparse takes '-5,...' for an option."""
+    out: list[str] = []
+    for i, arg in enumerate(argv):
+        if i and argv[i - 1] == "--calibration-init" and arg.startswith("-") and arg[1:2].isdigit():
+            out[-1] = f"--calibration-init={arg}"
+            continue
+        out.append(arg)
+    return out
 
 
 def _mb(n: int) -> str:
@@ -80,30 +129,51 @@ def _mb(n: int) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_split_negative_box(list(sys.argv[1:] if argv is None else argv)))
     if args.opset not in SUPPORTED_OPSETS:
         parser.error(f"unsupported opset {args.opset}; use {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1}")
     if args.steps is not None and not 1 <= args.steps <= 20:
         parser.error(f"--steps must be in 1..20, got {args.steps}")
     try:
-        if args.quantize is None:
-            _refuse_quantize_options(args)
-            name = args.name or Path(args.checkpoint).stem
-            return _export(args, Path(args.output) if args.output else Path(name), name)
-        settings = quantize_settings(args)
-        folder = model_folder(args.checkpoint)
-        if folder is not None:
-            _refuse_checkpoint_options(args)
-            out = Path(args.output) if args.output else Path(f"{folder.name}-int8")
-            print(f"{PROG}: {args.checkpoint}: fp32 model folder, quantising its search graph to int8", flush=True)
-            return _quantize(folder, out, settings)
-        name = args.name or Path(args.checkpoint).stem
-        out = Path(args.output) if args.output else Path(f"{name}-int8")
-        with tempfile.TemporaryDirectory(prefix="dadiff-export-") as tmp:
-            code = _export(args, Path(tmp) / name, name, label="fp32 model (temporary)")
-            return code or _quantize(Path(tmp) / name, out, settings)
-    except (CheckpointError, QuantizeError) as e:
+        errors = _user_errors()
+    except ModuleNotFoundError as e:
+        return _fail(f"exporting needs PyTorch and onnx, which are not installed here (no module {e.name!r}): "
+                     f"{EXPORT_EXTRA}")
+    try:
+        return _main(args)
+    except errors as e:
         return _fail(str(e))
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; no files written", file=sys.stderr)
+        return 130
+
+
+def _user_errors() -> tuple[type[Exception], ...]:
+    """The one-line error types of the torch side (importing it here: --help and usage errors stay fast)."""
+    from .checkpoint import CheckpointError
+    from .quantize import QuantizeError
+
+    return UserError, CheckpointError, QuantizeError
+
+
+def _main(args: argparse.Namespace) -> int:
+    if args.quantize is None:
+        _refuse_quantize_options(args)
+        name = args.name or Path(args.checkpoint).stem
+        return _export(args, Path(args.output) if args.output else Path(name), name)
+    settings = quantize_settings(args)
+    folder = model_folder(args.checkpoint)
+    if folder is not None:
+        _refuse_checkpoint_options(args)
+        out = Path(args.output) if args.output else Path(f"{folder.name}-int8")
+        print(f"{PROG}: {args.checkpoint}: fp32 model folder, quantising its search graph to int8", flush=True)
+        return _quantize(folder, out, settings)
+    _refuse_folder(args.checkpoint)
+    name = args.name or Path(args.checkpoint).stem
+    out = Path(args.output) if args.output else Path(f"{name}-int8")
+    with tempfile.TemporaryDirectory(prefix="dadiff-export-") as tmp:
+        code = _export(args, Path(tmp) / name, name, label="fp32 model (temporary)")
+        return code or _quantize(Path(tmp) / name, out, settings)
 
 
 def _fail(message: str, code: int = 2) -> int:
@@ -121,16 +191,18 @@ def model_folder(spec: str) -> Path | None:
 
 def quantize_settings(args: argparse.Namespace) -> QuantizeSettings:
     """Check the quantisation options before anything slow runs; errors are one line (exit 2)."""
+    from .quantize import QuantizeSettings
+
     if args.quantize.lower() not in PRECISIONS:
-        raise QuantizeError(f"--quantize {args.quantize}: unsupported precision; available: {', '.join(PRECISIONS)}")
+        raise UserError(f"--quantize {args.quantize}: unsupported precision; available: {', '.join(PRECISIONS)}")
     init = _init_box(args.calibration_init) if args.calibration_init is not None else None
     if init is not None and args.calibration is None:
-        raise QuantizeError("--calibration-init applies to --calibration SRC only")
+        raise UserError("--calibration-init applies to --calibration SRC only")
     if args.calibration is not None:
         _check_calibration_source(args.calibration, init)
     settings = QuantizeSettings(calibration=args.calibration, init=init, frames=args.calibration_frames,
                                 eval_sequences=args.eval_sequences, eval_frames=args.eval_frames,
-                                bench_runs=args.bench_runs, recipe=args.recipe)
+                                bench_runs=args.bench_runs, recipe=args.recipe, reduce_range=args.reduce_range)
     settings.check()
     return settings
 
@@ -139,24 +211,24 @@ def _init_box(text: str) -> tuple[float, float, float, float]:
     try:
         box = parse_box(text)
     except ValueError as e:
-        raise QuantizeError(f"--calibration-init: {e}") from None
+        raise UserError(f"--calibration-init: {e}") from None
     if box[2] <= 0 or box[3] <= 0:
-        raise QuantizeError(f"--calibration-init: width and height must be positive, got {text!r}")
+        raise UserError(f"--calibration-init: width and height must be positive, got {text!r}")
     return box
 
 
 def _check_calibration_source(spec: str, init: tuple[float, float, float, float] | None) -> None:
     path = Path(spec).expanduser()
     if not path.exists():
-        raise QuantizeError(f"--calibration {spec}: no such file or folder (give a video file or a sequence folder)")
+        raise UserError(f"--calibration {spec}: no such file or folder (give a video file or a sequence folder)")
     try:
         source = open_source(str(path))
     except SourceError as e:
-        raise QuantizeError(f"--calibration: {e}") from None
+        raise UserError(f"--calibration: {e}") from None
     has_truth = source.init_box is not None
     source.close()
     if init is None and not has_truth:
-        raise QuantizeError(f"--calibration {spec}: no ground-truth file to start from; give --calibration-init "
+        raise UserError(f"--calibration {spec}: no ground-truth file to start from; give --calibration-init "
                             "x,y,w,h (the target in its first frame)")
 
 
@@ -166,13 +238,26 @@ def _refuse_quantize_options(args: argparse.Namespace) -> None:
         ("--calibration-frames", args.calibration_frames, DEFAULT_CALIBRATION_FRAMES),
         ("--eval-sequences", args.eval_sequences, DEFAULT_EVAL_SEQUENCES),
         ("--eval-frames", args.eval_frames, DEFAULT_EVAL_FRAMES), ("--bench-runs", args.bench_runs, DEFAULT_BENCH_RUNS),
-        ("--recipe", args.recipe, DEFAULT_RECIPE),
+        ("--recipe", args.recipe, DEFAULT_RECIPE), ("--reduce-range", args.reduce_range, None),
     ) if value != default]
     if given:
-        raise QuantizeError(f"{given[0]} applies to --quantize int8 only")
-    if Path(args.checkpoint).is_dir():
-        raise QuantizeError(f"{args.checkpoint}: is a model folder, not a checkpoint; add --quantize int8 to "
-                            "quantise it")
+        raise UserError(f"{given[0]} applies to --quantize int8 only")
+    _refuse_folder(args.checkpoint)
+
+
+def _refuse_folder(spec: str) -> None:
+    """A folder given where a checkpoint file is wanted: say which kind of folder it is."""
+    path = Path(spec)
+    if not path.is_dir():
+        return
+    checkpoints = sorted(p.name for p in path.iterdir() if p.suffix in (".pt", ".pth"))
+    if (path / "search.onnx").exists():
+        raise UserError(f"{spec}: is a model folder, not a checkpoint; add --quantize int8 to quantise it")
+    if checkpoints:
+        pick = "final.pt" if "final.pt" in checkpoints else checkpoints[0]
+        raise UserError(f"{spec}: is a folder of checkpoints ({', '.join(checkpoints[:4])}), not one; give a file, "
+                        f"e.g. {path / pick}")
+    raise UserError(f"{spec}: is a folder holding neither a checkpoint (.pt/.pth) nor a model (search.onnx)")
 
 
 def _refuse_checkpoint_options(args: argparse.Namespace) -> None:
@@ -182,11 +267,14 @@ def _refuse_checkpoint_options(args: argparse.Namespace) -> None:
         ("--tolerance", args.tolerance, PARITY_TOLERANCE),
     ) if value != default]
     if given:
-        raise QuantizeError(f"{given[0]} applies to checkpoints; {args.checkpoint} is an exported model folder")
+        raise UserError(f"{given[0]} applies to checkpoints; {args.checkpoint} is an exported model folder")
 
 
 def _export(args: argparse.Namespace, out: Path, name: str, label: str | None = None) -> int:
     """The fp32 export of a checkpoint, parity-gated; prints what it wrote."""
+    from .checkpoint import load_checkpoint
+    from .onnx_export import ExportError, export_model
+
     try:
         loaded = load_checkpoint(args.checkpoint, family=args.family, steps=args.steps, preset=args.preset)
         print(f"{PROG}: {args.checkpoint}: {loaded.config.family} ({loaded.source} format, "
@@ -207,6 +295,8 @@ def _export(args: argparse.Namespace, out: Path, name: str, label: str | None = 
 
 
 def _quantize(folder: Path, out: Path, settings: QuantizeSettings) -> int:
+    from .quantize import quantize_model
+
     report = quantize_model(folder, out, settings, log=lambda line: print(line, flush=True))
     print_quantize_report(report)
     return 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
@@ -76,7 +78,13 @@ class ModelConfig:
         if unknown:
             raise ValueError(f"unknown model config keys: {', '.join(unknown)}")
         d = dict(d)
-        tracker = TrackerConfig(**d.pop("tracker", {}))
+        raw_tracker = d.pop("tracker", {})
+        if not isinstance(raw_tracker, dict):
+            raise ValueError(f"'tracker' must be a table, got {raw_tracker!r}")
+        unknown = sorted(set(raw_tracker) - {f.name for f in fields(TrackerConfig)})
+        if unknown:
+            raise ValueError(f"unknown tracker config keys: {', '.join(unknown)}")
+        tracker = TrackerConfig(**raw_tracker)
         d["level_names"] = tuple(d["level_names"])
         d["backbone_channels"] = tuple(d["backbone_channels"])
         return cls(tracker=tracker, **d)
@@ -118,6 +126,103 @@ def mobile_config() -> ModelConfig:
         ddim_steps=2, ddim_start_t=None, align="paper", align_heads=4, align_ffn=96, head_search_padding=1,
         tracker=TrackerConfig(stride=16, score_size=13),
     )
+
+
+_INT_FIELDS = ("channels", "template_feature_size", "search_feature_size", "head_hidden", "denoiser_ch",
+               "denoiser_res_blocks", "denoiser_groups", "diffusion_total_steps", "ddim_steps", "align_heads",
+               "align_ffn")
+_TRACKER_INTS = ("exemplar_size", "instance_size", "stride", "score_size")
+ALIGNS = ("released", "paper", "none")
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_model_fields(cfg: ModelConfig) -> None:
+    if cfg.family not in FAMILIES:
+        raise ValueError(f"'family' is {cfg.family!r}; expected one of {', '.join(FAMILIES)}")
+    if cfg.backbone != "resnet50-atrous" and not is_lite0(cfg.backbone):
+        known = ", ".join(("resnet50-atrous", *LITE0_TRUNKS))
+        raise ValueError(f"'backbone' is {cfg.backbone!r}; expected one of {known}")
+    for name in _INT_FIELDS:
+        value = getattr(cfg, name)
+        if not _is_int(value) or value < 1:
+            raise ValueError(f"'{name}' is {value!r}; expected a positive integer")
+    if not 1 <= cfg.ddim_steps <= cfg.diffusion_total_steps:
+        raise ValueError(f"'ddim_steps' is {cfg.ddim_steps}; expected 1..{cfg.diffusion_total_steps} "
+                         "(diffusion_total_steps)")
+    if cfg.ddim_start_t is not None and (not _is_int(cfg.ddim_start_t) or cfg.ddim_start_t < 0):
+        raise ValueError(f"'ddim_start_t' is {cfg.ddim_start_t!r}; expected an integer >= 0 or none")
+    if cfg.align not in ALIGNS:
+        raise ValueError(f"'align' is {cfg.align!r}; expected one of {', '.join(ALIGNS)}")
+    for name in ("use_dadiff", "denoiser_attention"):
+        if not isinstance(getattr(cfg, name), bool):
+            raise ValueError(f"'{name}' is {getattr(cfg, name)!r}; expected true or false")
+    levels = (cfg.level_names, cfg.backbone_channels)
+    if not cfg.level_names or len(cfg.level_names) != len(cfg.backbone_channels):
+        raise ValueError(f"'level_names' and 'backbone_channels' must be non-empty and of one length, got {levels}")
+    if not all(_is_int(v) and v >= 0 for v in cfg.level_names) or not all(
+            _is_int(v) and v >= 1 for v in cfg.backbone_channels):
+        raise ValueError(f"'level_names' / 'backbone_channels' must hold integers (>= 0 / >= 1), got {levels}")
+    if (2 * cfg.denoiser_ch) % cfg.denoiser_groups or cfg.denoiser_ch % cfg.denoiser_groups:
+        raise ValueError(f"'denoiser_groups' {cfg.denoiser_groups} does not divide 'denoiser_ch' {cfg.denoiser_ch}")
+    if cfg.align != "none" and cfg.channels % cfg.align_heads:
+        raise ValueError(f"'align_heads' {cfg.align_heads} does not divide 'channels' {cfg.channels}")
+    if not _is_int(cfg.head_search_padding) or cfg.head_search_padding < 0:
+        raise ValueError(f"'head_search_padding' is {cfg.head_search_padding!r}; expected an integer >= 0")
+
+
+def _check_tracker_fields(tr: TrackerConfig) -> None:
+    for name in _TRACKER_INTS:
+        value = getattr(tr, name)
+        if not _is_int(value):
+            raise ValueError(f"'tracker.{name}' is {value!r}; expected an integer")
+    for name in ("context_amount", "min_size"):
+        if not _is_number(getattr(tr, name)):
+            raise ValueError(f"'tracker.{name}' is {getattr(tr, name)!r}; expected a number")
+    if not isinstance(tr.hp_presets, dict) or not all(isinstance(v, dict) for v in tr.hp_presets.values()):
+        raise ValueError("'tracker.hp_presets' must map preset names to tables")
+    if tr.default_preset not in tr.hp_presets:
+        known = ", ".join(sorted(tr.hp_presets)) or "none"
+        raise ValueError(f"'tracker.default_preset' is {tr.default_preset!r}; the presets are {known}")
+    for name, table in tr.hp_presets.items():
+        for key in ("lr", "penalty_k", "window_influence"):
+            if not _is_number(table.get(key)):
+                raise ValueError(f"'tracker.hp_presets.{name}.{key}' is {table.get(key)!r}; expected a number")
+
+
+def tracker_metadata(tr: TrackerConfig) -> dict[str, str]:
+    """The tracker keys of the exported metadata, as the runtime reads them (docs/model-format.md)."""
+    hp = tr.hp_presets[tr.default_preset]
+    return {
+        "dadiff_format": "1", "exemplar_size": str(tr.exemplar_size), "instance_size": str(tr.instance_size),
+        "stride": str(tr.stride), "score_size": str(tr.score_size), "point_origin": str(tr.point_origin),
+        "context_amount": repr(tr.context_amount), "min_size": repr(tr.min_size),
+        "penalty_k": repr(hp["penalty_k"]), "window_influence": repr(hp["window_influence"]), "lr": repr(hp["lr"]),
+        "hp_presets": json.dumps(tr.hp_presets, sort_keys=True), "default_preset": tr.default_preset,
+    }
+
+
+def validate_config(cfg: ModelConfig) -> None:
+    """ValueError naming the key when a stored config cannot give a model the runtime loads.
+
+    The model's own fields first (types, ranges, known names), then the runtime's metadata checks on the
+    tracker settings it would export, so an export either yields a loadable model or fails before any work.
+    """
+    from dadiff.runtime.config import check_metadata  # torch-free; imported here to keep this module light
+    from dadiff.runtime.errors import ModelError
+
+    _check_model_fields(cfg)
+    _check_tracker_fields(cfg.tracker)
+    try:
+        check_metadata(tracker_metadata(cfg.tracker), "tracker settings")
+    except ModelError as e:
+        raise ValueError(str(e).replace("tracker settings: metadata key ", "tracker key ")) from None
 
 
 def is_lite0(backbone: str) -> bool:

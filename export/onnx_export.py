@@ -26,11 +26,9 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from .checkpoint import LoadedCheckpoint
 from .config import is_lite0
+from .defaults import DEFAULT_OPSET, PARITY_TOLERANCE, SUPPORTED_OPSETS
 from .network import DaDiffNet
 
-SUPPORTED_OPSETS = range(14, 21)
-DEFAULT_OPSET = 17
-PARITY_TOLERANCE = 1e-4
 TEMPLATE_FILE, SEARCH_FILE = "template.onnx", "search.onnx"
 
 
@@ -216,6 +214,18 @@ def staging_folder(out: Path, prefix: str) -> Path:
         raise ExportError(f"{parent}: cannot write the output there ({e.strerror or e})") from None
 
 
+def _check_runtime_loads(folder: Path) -> None:
+    """Open the written graphs as the runtime does (metadata, inputs, output shapes): a model it refuses
+    is never shipped, whatever the parity."""
+    from dadiff.runtime.errors import InputError, ModelError
+    from dadiff.runtime.onnx_backend import OnnxBackend
+
+    try:
+        OnnxBackend(folder, provider="cpu", threads=1, cache=False)
+    except (ModelError, InputError) as e:
+        raise ExportError(f"the runtime refuses the exported model ({e}); no files written") from None
+
+
 def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset: int = DEFAULT_OPSET,
                  tolerance: float = PARITY_TOLERANCE) -> ExportReport:
     """Write out_dir/template.onnx and out_dir/search.onnx; nothing is left behind on failure."""
@@ -249,6 +259,7 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
             raise ExportError(f"parity check failed: output {worst} differs by {errors[worst][0]:.3g} "
                               f"(scaled {parity[worst]:.3g}) between PyTorch and onnxruntime (tolerance "
                               f"{tolerance:g}); no files written")
+        _check_runtime_loads(staging)
         report = ExportReport(
             out_dir=out, files={f: (staging / f).stat().st_size for f in (TEMPLATE_FILE, SEARCH_FILE)},
             gflop_search=gflop_search, gflop_template=gflop_template,

@@ -32,6 +32,7 @@ from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, Q
 from onnxruntime.quantization.shape_inference import quant_pre_process
 
 from dadiff.runtime.backend import RecordingBackend
+from dadiff.runtime.cpu import INT8_WARNING, int8_saturates
 from dadiff.runtime.decode import foreground_score, hann_window
 from dadiff.runtime.errors import InputError, ModelError
 from dadiff.runtime.evaluation.datasets import Dataset, DatasetError
@@ -41,16 +42,19 @@ from dadiff.runtime.onnx_backend import OnnxBackend, session_options
 from dadiff.runtime.sources import SourceError, open_source
 from dadiff.runtime.tracker import Tracker
 
+from .defaults import (
+    DEFAULT_BENCH_RUNS,
+    DEFAULT_CALIBRATION_FRAMES,
+    DEFAULT_EVAL_FRAMES,
+    DEFAULT_EVAL_SEQUENCES,
+    DEFAULT_RECIPE,
+)
 from .onnx_export import SEARCH_FILE, TEMPLATE_FILE, ExportError, random_ops, staging_folder
 
-PRECISIONS = ("int8",)
-DEFAULT_CALIBRATION_FRAMES = 200
 CALIBRATION_SEED = 7  # generated calibration sequences: training photos, seeds 7, 8, ...
 CALIBRATION_SEQUENCE_FRAMES = 25  # search crops per generated calibration sequence (many short sequences)
 EVAL_SEED = 2026  # the README's benchmark seed (test photos)
-DEFAULT_EVAL_SEQUENCES, DEFAULT_EVAL_FRAMES = 8, 100
 HELDOUT_CROPS = 200  # search feeds kept, spread evenly, from the fp32 evaluation run: the deviation check
-DEFAULT_BENCH_RUNS = 200
 BENCH_THREADS = 2
 _CALIBRATION_CHUNK = 10  # crops per calibration pass: bounds what the calibrator holds in memory
 
@@ -119,7 +123,6 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
     Recipe("int8-core-b2", _float("/backbone/_blocks.2/*") + _ALIGN + _EARLY + _float("/sampler/*nin_shortcut*")
            + _DENOISER_CONVS, note="int8-core with backbone block 2 in float too: closer to fp32, ~0.2 ms slower"),
 )}
-DEFAULT_RECIPE = "int8-core-b2"  # README set, 16x120: success -0.001 vs fp32 (int8-core -0.009), same speed
 METHODS = {"minmax": CalibrationMethod.MinMax, "entropy": CalibrationMethod.Entropy,
            "percentile": CalibrationMethod.Percentile}
 DEFAULT_METHOD = "minmax"  # entropy and percentile measured no better, at 5-7x the calibration time
@@ -200,7 +203,7 @@ def _chunk(n: int) -> int:
 
 def quantize_search(fp32_search: Path, out: Path, feeds: Sequence[Feed], recipe: Recipe, method: str,
                     workdir: Path, activations: QuantType = QuantType.QUInt8,
-                    weights: QuantType = QuantType.QInt8) -> list[str]:
+                    weights: QuantType = QuantType.QInt8, reduce_range: bool = False) -> list[str]:
     """Write the int8 search graph to `out`; returns the names of the nodes left in float.
 
     Pre-processing (symbolic shape inference, constant folding) comes first so that the quantiser sees
@@ -215,7 +218,7 @@ def quantize_search(fp32_search: Path, out: Path, feeds: Sequence[Feed], recipe:
     quantize_static(
         str(pre), str(out), FeedReader(feeds), quant_format=QuantFormat.QDQ, per_channel=True,
         activation_type=activations, weight_type=weights, calibrate_method=METHODS[method],
-        nodes_to_exclude=excluded, extra_options=extra,
+        nodes_to_exclude=excluded, extra_options=extra, reduce_range=reduce_range,
     )
     return excluded
 
@@ -338,6 +341,11 @@ class QuantizeSettings:
     bench_runs: int = DEFAULT_BENCH_RUNS  # 0 skips the latency comparison
     recipe: str = DEFAULT_RECIPE
     method: str = DEFAULT_METHOD
+    reduce_range: bool | None = None  # 7-bit weights; None = exactly when this CPU's int8 kernels saturate
+
+    @property
+    def use_reduce_range(self) -> bool:
+        return int8_saturates() if self.reduce_range is None else self.reduce_range
 
     def check(self) -> None:
         if self.recipe not in RECIPES:
@@ -360,6 +368,7 @@ class QuantizeReport:
     calibration: str
     calibration_frames: int
     float_nodes: int
+    reduce_range: bool = False
     deviation: dict[str, float] = field(default_factory=dict)
     success: dict[str, float | str] = field(default_factory=dict)
     latency_ms: dict[str, float | int] = field(default_factory=dict)
@@ -444,10 +453,13 @@ def _quantize(source: Path, staging: Path, meta: dict[str, str], settings: Quant
     shutil.copyfile(source / TEMPLATE_FILE, model / TEMPLATE_FILE)
     recipe = RECIPES[settings.recipe]
     start = time.perf_counter()
+    reduce = settings.use_reduce_range
+    if int8_saturates():
+        log(f"  warning: {INT8_WARNING}; reduce_range {'on' if reduce else 'off (--no-reduce-range)'}")
     with _quiet_quantizer():
         excluded = quantize_search(source / SEARCH_FILE, model / SEARCH_FILE, feeds, recipe, settings.method,
-                                   staging)
-    report = QuantizeReport(Path(), recipe.name, settings.method, what, len(feeds), len(excluded))
+                                   staging, reduce_range=reduce)
+    report = QuantizeReport(Path(), recipe.name, settings.method, what, len(feeds), len(excluded), reduce)
     del feeds
     found = random_ops(model / SEARCH_FILE)
     if found:

@@ -8,7 +8,6 @@ the sampler into the denoiser and the tracking-oriented layer (paper sec. III; s
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import os
@@ -30,6 +29,8 @@ from .config import ModelConfig, default_config, is_lite0
 from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
 from .losses import align_loss, ban_cls_loss, ban_iou_loss, distill_cls_loss, distill_loc_loss, feature_distill_loss
 from .network import DaDiffNet, build_model
+from .train_check import check_train_values
+from .train_cli import build_parser, finish_line
 from .train_data import CropConfig, PairStream, make_day_source
 
 DAY, NIGHT = 0.0, 1.0
@@ -66,6 +67,7 @@ class TrainConfig:
     teacher: str | None = None            # NanoTrack v3 ONNX folder: distil its responses and search features
     lambda_distill: float = 1.0           # teacher cls + loc responses (stride-16 families)
     lambda_feature: float = 0.5           # teacher search features through a training-only 1x1 adapter
+    lambda_night_trc: float = 0.0         # L_trc on the rendered night pairs too (their boxes are the day boxes)
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
@@ -76,6 +78,10 @@ class TrainConfig:
             raise ValueError(f"{path}: no such config file") from None
         except tomllib.TOMLDecodeError as e:
             raise ValueError(f"{path}: invalid TOML ({e})") from None
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a text file (TOML must be UTF-8)") from None
+        except OSError as e:
+            raise ValueError(f"{path}: cannot read ({e.strerror or e})") from None
         flat: dict[str, Any] = {}
         for key, value in raw.items():
             if isinstance(value, dict) and key in ("train", "loss", "data", "output"):
@@ -85,7 +91,8 @@ class TrainConfig:
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(flat) - known)
         if unknown:
-            raise ValueError(f"{path}: unknown config keys: {', '.join(unknown)}")
+            raise ValueError(f"{path}: unknown config keys: {', '.join(unknown)} (dadiff-train --help lists them)")
+        check_train_values(cls(), flat, path)  # types and ranges, before any work
         cfg = cls(**flat)
         if cfg.stage not in ("baseline", "dadiff"):
             raise ValueError(f"{path}: stage must be 'baseline' or 'dadiff', got {cfg.stage!r}")
@@ -191,7 +198,12 @@ class Trainer:
             raise ValueError(f"teacher distillation needs a one-level stride-{TEACHER_STRIDE} family "
                              f"(dadiff-mobile), not {self.net.cfg.family}")
         teacher = NanoTrackTeacher(self.cfg.teacher)
-        return teacher, nn.Conv2d(self.net.cfg.channels, 96, 1).to(self.device)
+        adapter = nn.Conv2d(self.net.cfg.channels, 96, 1)
+        if self.cfg.init != "imagenet":  # a stage that continues one with the teacher keeps its adapter
+            saved = read_checkpoint_file(self.cfg.init).get("teacher_adapter")
+            if saved is not None:
+                adapter.load_state_dict(saved)
+        return teacher, adapter.to(self.device)
 
     # ---- checkpoints -------------------------------------------------------------------------------
     @property
@@ -247,16 +259,21 @@ class Trainer:
         self.train_mode()
         cpu_batch = batch
         batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
-        night_inputs = (batch["z_night"], batch["x_night"]) if self.dadiff else ()
-        l_cls, l_loc, l_align, day_states, night_states, (cls, loc, x_neck) = self.model(
-            batch["z"], batch["x"], batch["label"], batch["loc"], bool(batch["paired"].all()), *night_inputs)
-        total = cfg.lambda_trc * (l_cls + l_loc)
-        logs = {"cls": l_cls.item(), "loc": l_loc.item()}
+        night_inputs = (batch["z_night"], batch["x_night"]) if uses_night(cfg) else ()
+        out = self.model(batch["z"], batch["x"], batch["label"], batch["loc"], bool(batch["paired"].all()),
+                         *night_inputs)
+        l_align, day_states, night_states = out["align"], out["day_states"], out["night_states"]
+        cls, loc = out["cls_map"], out["loc_map"]
+        total = cfg.lambda_trc * (out["cls"] + out["loc"])
+        logs = {"cls": out["cls"].item(), "loc": out["loc"].item()}
+        if cfg.lambda_night_trc and bool(batch["paired"].all()):
+            total = total + cfg.lambda_night_trc * (out["night_cls"] + out["night_loc"])
+            logs |= {"night_cls": out["night_cls"].item(), "night_loc": out["night_loc"].item()}
         if self.teacher is not None:
             t_feat, t_prob, t_loc = (t.to(self.device) for t in self.teacher(cpu_batch["z"], cpu_batch["x"],
                                                                               cls.shape[-1]))
             l_distill = distill_cls_loss(cls, t_prob) + distill_loc_loss(loc, t_loc, t_prob)
-            l_feature = feature_distill_loss(self.adapter(x_neck), t_feat)
+            l_feature = feature_distill_loss(self.adapter(out["x_neck"]), t_feat)
             total = total + cfg.lambda_distill * l_distill + cfg.lambda_feature * l_feature
             logs |= {"distill": l_distill.item(), "feature": l_feature.item()}
         if self.dadiff and cfg.align_loss:
@@ -305,18 +322,30 @@ class TrainForward(nn.Module):
         net = self.net
         zb, xb = net.branch(z, net.e_zf, True), net.branch(x, net.e_xf, False)
         cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
-        l_cls, l_loc = ban_cls_loss(cls, label), ban_iou_loss(loc, loc_target, label)
-        day_states = [s for b in (zb, xb) for level in b.states for s in level]
-        outputs = (cls, loc, xb.neck[0])  # for the teacher's losses
+        zero = cls.sum() * 0
+        out = {"cls": ban_cls_loss(cls, label), "loc": ban_iou_loss(loc, loc_target, label), "align": zero,
+               "night_cls": zero, "night_loc": zero, "night_states": [],
+               "day_states": [s for b in (zb, xb) for level in b.states for s in level],
+               "cls_map": cls, "loc_map": loc, "x_neck": xb.neck[0]}  # the maps and neck: the teacher's losses
         if z_night is None:
-            return l_cls, l_loc, cls.sum() * 0, day_states, [], outputs
+            return out
         zn, xn = net.branch(z_night, net.e_zf, True), net.branch(x_night, net.e_xf, False)
-        night_states = [s for b in (zn, xn) for level in b.states for s in level]
-        # L_align: recover day features from noise, conditioned on the night features of the same content
-        # (night rendered from day), or on the day features themselves when the night data is unpaired
-        losses = [align_loss(net.diffusion, net.sampler.alpha_bar, d.detach(), n if paired else d, self.gen)
-                  for db, nb in ((zb, zn), (xb, xn)) for d, n in zip(db.neck, nb.neck, strict=True)]
-        return l_cls, l_loc, torch.stack(losses).mean(), day_states, night_states, outputs
+        out["night_states"] = [s for b in (zn, xn) for level in b.states for s in level]
+        if paired:  # rendered from the day frames: the day boxes hold
+            cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))
+            out["night_cls"], out["night_loc"] = ban_cls_loss(cls_n, label), ban_iou_loss(loc_n, loc_target, label)
+        if net.cfg.use_dadiff:
+            # L_align: recover day features from noise, conditioned on the night features of the same content
+            # (night rendered from day), or on the day features themselves when the night data is unpaired
+            losses = [align_loss(net.diffusion, net.sampler.alpha_bar, d.detach(), n if paired else d, self.gen)
+                      for db, nb in ((zb, zn), (xb, xn)) for d, n in zip(db.neck, nb.neck, strict=True)]
+            out["align"] = torch.stack(losses).mean()
+        return out
+
+
+def uses_night(cfg: TrainConfig) -> bool:
+    """Night crops are made for the DaDiff stage, and for any stage that tracks on them."""
+    return cfg.stage == "dadiff" or cfg.lambda_night_trc > 0
 
 
 def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
@@ -324,7 +353,7 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
                       score_size=tr.score_size, context=tr.context_amount)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
-                        with_night=cfg.stage == "dadiff")
+                        with_night=uses_night(cfg))
     return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
                       persistent_workers=cfg.workers > 0)
 
@@ -353,7 +382,8 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
     resumed = trainer.resume()
     loader = iter(data_loader(cfg, trainer.net, rank))
     log_path = trainer.out / "log.csv"
-    fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "distill", "feature", "sec_per_step"]
+    fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "distill", "feature", "night_cls",
+              "night_loc", "sec_per_step"]
     if rank == 0:
         trainer.out.mkdir(parents=True, exist_ok=True)
         new_log = not log_path.exists() or not resumed
@@ -403,13 +433,7 @@ def replica_divergence(net: nn.Module) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="dadiff-train", description=__doc__)
-    p.add_argument("--config", required=True, help="training config (TOML); see configs/")
-    p.add_argument("--max-steps", type=int, help="stop after this many steps of this run (resume later)")
-    p.add_argument("--out", help="override the output folder")
-    p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
-    p.add_argument("--max-minutes", type=float, help="stop after this many minutes of this run (resume later)")
-    args = p.parse_args(argv)
+    args = build_parser().parse_args(argv)
     try:
         cfg = TrainConfig.from_toml(args.config)
         if args.out:
@@ -427,7 +451,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"dadiff-train: {trainer.world} replicas, max parameter difference {divergence:.3g}")
         dist.destroy_process_group()
     if trainer.rank == 0:
-        print(f"dadiff-train: step {trainer.step}/{cfg.steps}; checkpoint {trainer.last_path}")
+        print(f"dadiff-train: {finish_line(trainer.step, cfg.steps, trainer.out)}")
     return 0
 
 

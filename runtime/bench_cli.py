@@ -38,8 +38,8 @@ from .bench import (
 )
 from .cli import positive_int
 from .cpu import cpu_flags
-from .errors import InputError, ModelError
-from .evaluation.datasets import Dataset
+from .errors import InputError, ModelError, OneLineParser
+from .evaluation.datasets import Dataset, DatasetError
 from .evaluation.evaluate import (
     EvalError,
     OpenCVTracker,
@@ -51,6 +51,7 @@ from .evaluation.evaluate import (
     score_tracker,
     tracker_folder,
 )
+from .evaluation.scene_error import SceneError
 from .onnx_backend import physical_cores, thread_count
 from .tracker import Tracker
 
@@ -68,7 +69,7 @@ class BenchError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="dadiff-bench", description=__doc__)
+    p = OneLineParser(prog="dadiff-bench", description=__doc__)
     p.add_argument("models", nargs="*", help="model folders or shipped names (default: the shipped default)")
     p.add_argument("--frames", type=positive_int, default=1000, help="timed frames per model (default 1000)")
     p.add_argument("--warmup", type=int, default=20, help="untimed frames first (default 20)")
@@ -345,8 +346,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         report = run(args)
-    except (BenchError, ModelError, InputError, OSError) as exc:
-        print(f"dadiff-bench: error: {exc}", file=sys.stderr)
+    except (BenchError, ModelError, InputError, OSError, SceneError, DatasetError, EvalError) as exc:
+        print(f"dadiff-bench: error: {exc}", file=sys.stderr)  # SceneError: e.g. scikit-image missing
         return 2
     except KeyboardInterrupt:
         print("dadiff-bench: interrupted", file=sys.stderr)

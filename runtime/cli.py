@@ -8,7 +8,6 @@ is flushed and closed and the summary is printed (exit code 130).
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import threading
@@ -17,13 +16,13 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-import cv2
 from tqdm import tqdm
 
+from .cpu import int8_warning
 from .errors import InputError, ModelError
-from .outputs import OutputError, Record, Sink, TrackLog, VideoSink
+from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
 from .runstats import RunStats
-from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box
+from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
 from .tracker import Tracker
 
 PROG = "dadiff-run"
@@ -34,9 +33,25 @@ class UsageError(Exception):
     """A command-line problem, reported as one line."""
 
 
+BOX_OPTIONS = ("--init",)
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
+        if any(f"argument {o}: expected one argument" in message for o in BOX_OPTIONS):
+            message += " (a box starting with '-' is written --init=-5,-5,15,9)"
         raise UsageError(f"{message} (see {PROG} --help)")
+
+
+def join_negative_boxes(argv: Sequence[str], options: Sequence[str] = BOX_OPTIONS) -> list[str]:
+    """`--init -5,-5,15,9` as `--init=-5,-5,15,9`: argparse takes a value starting with '-' for an option."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in options and len(arg) > 1 and arg[0] == "-" and (arg[1].isdigit() or arg[1] == "."):
+            out[-1] = f"{out[-1]}={arg}"
+            continue
+        out.append(arg)
+    return out
 
 
 def _box_arg(text: str) -> tuple[float, float, float, float]:
@@ -104,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--provider", help="onnxruntime provider (cpu, cuda, tensorrt, openvino; default: best)"
     )
-    parser.add_argument("--threads", type=positive_int, help="threads per session (default: CPU count)")
+    parser.add_argument("--threads", type=positive_int, help="threads per session (default: one per physical core)")
     parser.add_argument("--output", type=Path, metavar="FILE", help="track log, .csv or .jsonl")
     parser.add_argument("--save-video", type=Path, metavar="OUT.mp4", help="annotated video (mp4v)")
     parser.add_argument(
@@ -115,8 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="generate one night sequence, track it, write the annotated video and print FPS and success",
     )
-    parser.add_argument("--demo-out", type=Path, default=Path("dadiff-demo"), help="folder for --demo's video")
-    parser.add_argument("--seed", type=int, default=0, help="sequence seed for --demo")
+    parser.add_argument("--demo-out", type=Path, default=Path("dadiff-demo"),
+                        help="folder for --demo's video (default: ./dadiff-demo)")
+    parser.add_argument("--seed", type=int, default=0, help="sequence seed for --demo (default: 0)")
     from dadiff.drone.cli import add_mavlink_arguments  # light: no pymavlink at parser time
 
     add_mavlink_arguments(parser)
@@ -124,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    if args.demo_out.exists() and not args.demo_out.is_dir():
+        raise OutputError(f"{args.demo_out}: --demo-out exists and is not a folder")
     from .evaluation.demo import run_demo  # the generator needs scikit-image's photos: loaded only here
 
     run_demo(args.model, args.demo_out, seed=args.seed)
@@ -147,22 +165,6 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-@contextmanager
-def _quiet_opencv() -> Iterator[None]:
-    """Keep OpenCV/FFmpeg warnings off stderr so that errors stay one line; the user's own
-    OPENCV_LOG_LEVEL / OPENCV_FFMPEG_LOGLEVEL settings win."""
-    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when FFmpeg starts
-    if "OPENCV_LOG_LEVEL" in os.environ:
-        yield
-        return
-    previous = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-    try:
-        yield
-    finally:
-        cv2.utils.logging.setLogLevel(previous)
-
-
 def _open_sinks(args: argparse.Namespace, fps: float | None) -> list[Sink]:
     sinks: list[Sink] = []
     try:
@@ -184,9 +186,11 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
     """
     if args.output is not None and args.output.suffix.lower() not in (".csv", ".jsonl"):
         raise OutputError(f"{args.output}: --output must end in .csv or .jsonl")
+    check_distinct(args.video, {"--output": args.output, "--save-video": args.save_video})
     tracker = Tracker.load(
         args.model, provider=args.provider, threads=args.threads, preset=args.preset, overrides=args.hp
     )
+    warn_int8(tracker)
     source = open_source(args.video)
     sinks: list[Sink] = []
     try:
@@ -208,9 +212,35 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
         return _loop(tracker, source, frames, sinks, args.max_frames, stats)
     finally:
         stats.skipped = source.skipped
-        for sink in sinks:
-            sink.close()
+        _close_all(sinks)
         source.close()
+        _warn_missing(source)
+
+
+def warn_int8(tracker: Tracker) -> None:
+    """One warning line when an int8 model runs where onnxruntime's int8 kernels saturate (runtime/cpu.py)."""
+    warning = int8_warning(getattr(tracker.backend, "meta", None))
+    if warning:
+        print(f"{PROG}: warning: {warning}", file=sys.stderr)
+
+
+def _warn_missing(source: VideoSource | FolderSource) -> None:
+    missing = getattr(source, "missing", 0)
+    if missing:
+        print(f"{PROG}: warning: '{source.spec}' ended {missing} frames before its stated length "  # type: ignore[union-attr]
+              f"{source.length} (truncated or damaged file); they are counted as skipped", file=sys.stderr)
+
+
+def _close_all(sinks: Sequence[Sink]) -> None:
+    """Close every sink even when one fails; the first failure is raised after all are closed."""
+    failure: OutputError | None = None
+    for sink in sinks:
+        try:
+            sink.close()
+        except OutputError as exc:
+            failure = failure or exc
+    if failure is not None:
+        raise failure
 
 
 def _loop(
@@ -263,7 +293,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         from dadiff.drone.config import parse_args as parse_with_config
 
-        args = parse_with_config(parser, argv)  # --config FILE.toml; the command line wins
+        # --config FILE.toml; the command line wins
+        args = parse_with_config(parser, join_negative_boxes(sys.argv[1:] if argv is None else argv))
     except UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
@@ -272,14 +303,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.mavlink:
         from dadiff.drone.cli import run_mavlink
 
-        with _quiet_opencv():
+        with quiet_opencv():
             return run_mavlink(args)
     if args.demo:
         try:
-            with _quiet_opencv():
+            with _sigterm_as_interrupt(), quiet_opencv():
                 return _demo(args)
         except (ModelError, InputError, SourceError, OutputError, ValueError, ImportError) as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+        except OSError as exc:
+            print(f"{PROG}: error: {exc.filename or args.demo_out}: {exc.strerror or exc}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
             print(f"{PROG}: interrupted", file=sys.stderr)
@@ -290,7 +324,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     stats = RunStats()
     try:
-        with _sigterm_as_interrupt(), _quiet_opencv():
+        with _sigterm_as_interrupt(), quiet_opencv():
             interrupted = _track(args, stats)
     except (ModelError, InputError, SourceError, OutputError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)

@@ -85,21 +85,22 @@ LOST_KEYS = tuple(f.name for f in fields(Params) if f.name not in HP_KEYS)
 TUNABLE_KEYS = (*HP_KEYS, *LOST_KEYS)
 LOST_DEFAULTS = {k: getattr(Params(0.0, 0.0, 0.0), k) for k in LOST_KEYS}
 
-# (low, high) inclusive bounds; None = unbounded.
+# (low, high) inclusive bounds; None = unbounded. Growth and size factors have an upper bound too: a search
+# region grown by 1e308 overflowed the crop (an OverflowError instead of a one-line error).
 _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "lr": (0.0, 1.0),
     "penalty_k": (0.0, None),
     "window_influence": (0.0, 1.0),
     "uncertain_score": (0.0, 1.0),
     "lost_score": (0.0, 1.0),
-    "lost_frames": (1, None),
-    "search_growth": (1.0, None),
-    "search_growth_max": (1.0, None),
+    "lost_frames": (1, 1_000_000),
+    "search_growth": (1.0, 10.0),
+    "search_growth_max": (1.0, 100.0),
     "track_score": (0.0, 1.0),
     "score_smoothing": (0.01, 1.0),
-    "max_scale_step": (1.0, None),
-    "max_scale_change": (1.0, None),
-    "max_aspect_change": (1.0, None),
+    "max_scale_step": (1.0, 10.0),
+    "max_scale_change": (1.0, 1000.0),
+    "max_aspect_change": (1.0, 1000.0),
     "max_frame_cover": (0.01, 1.0),
 }
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
+from typing import NoReturn
+
 
 class ModelError(Exception):
     """A model folder or file is missing, unreadable, or not a valid dadiff model.
@@ -12,3 +15,16 @@ class ModelError(Exception):
 
 class InputError(ValueError):
     """A caller-supplied value is unusable: init box, frame, preset, override, provider, threads."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line, `<prog>: error: <what> (see <prog> --help)`, exit 2.
+
+    The whole usage block on every typo buries the one line that matters; all dadiff commands report alike.
+    Sub-command parsers inherit the class (argparse builds them with type(parent)).
+    """
+
+    def error(self, message: str) -> NoReturn:  # type: ignore[override]
+        top, _, sub = self.prog.partition(" ")  # "dadiff-eval run": the command, then its sub-command
+        where = f"{sub}: " if sub else ""
+        self.exit(2, f"{top}: error: {where}{message} (see {self.prog} --help)\n")

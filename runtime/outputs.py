@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -27,6 +29,34 @@ STATE_COLOURS = {
 
 class OutputError(Exception):
     """An output file cannot be written (one-line message)."""
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)  # hard and symbolic links too
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
+
+
+def check_distinct(video: str | None, outputs: dict[str, Path | None]) -> None:
+    """OutputError when an output names the input video or another output: opening it would truncate it
+    (`--save-video same.mp4` used to replace the input with a 3-frame file)."""
+    named = [(option, Path(path)) for option, path in outputs.items() if path is not None]
+    spec = str(video or "")
+    is_file = bool(spec) and "://" not in spec and not spec.isdigit() and not spec.startswith("/dev/")
+    source = Path(spec).expanduser() if is_file else None
+    for i, (option, path) in enumerate(named):
+        if source is not None and _same_file(path, source):
+            raise OutputError(f"{path}: {option} names the input video; choose another file (nothing written)")
+        for other, earlier in named[:i]:
+            if _same_file(path, earlier):
+                raise OutputError(f"{path}: given to both {other} and {option}; choose two files")
+
+
+def _write_error(path: Path, exc: OSError, rows: int) -> OutputError:
+    return OutputError(f"{path}: cannot write ({exc.strerror or exc}); the first {rows} rows were saved")
 
 
 @dataclass(frozen=True)
@@ -56,24 +86,43 @@ class TrackLog:
         if suffix not in (".csv", ".jsonl"):
             raise OutputError(f"{path}: --output must end in .csv or .jsonl")
         self.path, self._jsonl = path, suffix == ".jsonl"
+        self.rows, self._failed = 0, False
         try:
             self._file = path.open("w", newline="" if not self._jsonl else None, buffering=1)
         except OSError as exc:
             raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
         self._csv = None if self._jsonl else csv.writer(self._file, lineterminator="\n")
         if self._csv is not None:
-            self._csv.writerow(LOG_FIELDS)
+            self._guarded(self._csv.writerow, LOG_FIELDS)
+
+    def _guarded(self, write: Callable[[object], object], value: object) -> None:
+        """Write one line; a full disk or I/O error becomes one OutputError (rows before it are on disk),
+        and later writes are dropped without another error (the service keeps tracking)."""
+        if self._failed:
+            return
+        try:
+            write(value)
+        except OSError as exc:
+            self._failed = True
+            raise _write_error(self.path, exc, self.rows) from None
 
     def write(self, frame: Frame, record: Record) -> None:
         x, y, w, h = (round(float(v), 3) for v in record.box)
         row = (frame.index, round(frame.timestamp, 6), x, y, w, h, round(record.score, 5), record.state)
         if self._csv is not None:
-            self._csv.writerow(row)
+            self._guarded(self._csv.writerow, row)
         else:
-            self._file.write(json.dumps(dict(zip(LOG_FIELDS, row, strict=True))) + "\n")
+            self._guarded(self._file.write, json.dumps(dict(zip(LOG_FIELDS, row, strict=True))) + "\n")
+        self.rows += not self._failed
 
     def close(self) -> None:
-        self._file.close()
+        """Close; after a failed write the unwritable buffer is dropped quietly (the error was reported)."""
+        try:
+            self._file.close()
+        except OSError as exc:
+            if not self._failed:
+                self._failed = True
+                raise _write_error(self.path, exc, self.rows) from None
 
 
 def draw_overlay(image: np.ndarray, record: Record) -> np.ndarray:

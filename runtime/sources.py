@@ -7,10 +7,14 @@ unreadable image. A video file ends after `FILE_FAILURES` failed reads in a row 
 from __future__ import annotations
 
 import math
+import os
 import re
 import sys
+import tempfile
 import time
+import typing
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +29,85 @@ LIVE_FAILURES = 500  # about 5-20 s of a dead stream before giving up
 
 class SourceError(Exception):
     """A source cannot be opened or yields nothing (one-line message)."""
+
+
+# What image and video decoders print on damaged input straight to fd 2, past OpenCV's log level: libjpeg,
+# libpng, OpenCV's own AVI/MJPEG reader, FFmpeg.
+DECODER_NOISE = ("JPEG", "jpeg", "libpng", "Corrupt", "Premature end", "extraneous bytes", "marker", "Huffman",
+                 "Unexpected element", "Expected:", "AVI", "avi", "mjpeg", "h264", "mpeg4", "moov", "[mov",
+                 "Invalid", "invalid", "error while decoding", "decode_slice", "concealing")
+
+
+class QuietDecoder:
+    """Point file descriptor 2 at a scratch file while C decoders run, then pass on what is not their noise.
+
+    A damaged file made libjpeg, OpenCV's AVI reader and FFmpeg print lines of their own around the one
+    `dadiff-run: error:` line. Output of other threads in that window is delayed, not lost.
+    """
+
+    def __init__(self) -> None:
+        self._scratch: typing.BinaryIO | None = None
+        self._saved: int | None = None
+
+    def __enter__(self) -> QuietDecoder:
+        try:
+            if self._scratch is None:
+                self._scratch = tempfile.TemporaryFile()
+            sys.stderr.flush()
+            self._saved = os.dup(2)
+            os.dup2(self._scratch.fileno(), 2)
+        except (OSError, ValueError):
+            self._saved = None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._saved is None or self._scratch is None:
+            return
+        sys.stderr.flush()
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._saved = None
+        scratch = self._scratch
+        if scratch.tell() == 0:
+            return
+        scratch.seek(0)
+        text = scratch.read().decode(errors="replace")
+        scratch.seek(0)
+        scratch.truncate()
+        kept = [line for line in text.splitlines() if line.strip() and not any(n in line for n in DECODER_NOISE)]
+        if kept:
+            print("\n".join(kept), file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._scratch is not None:
+            self._scratch.close()
+            self._scratch = None
+
+
+def read_image(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None:
+    """cv2.imread without the decoder's own warnings on stderr (a damaged image is the caller's to count)."""
+    quiet = QuietDecoder()
+    try:
+        with quiet:
+            return cv2.imread(str(path), flags)
+    finally:
+        quiet.close()
+
+
+@contextmanager
+def quiet_opencv() -> Iterator[None]:
+    """Keep OpenCV/FFmpeg warnings off stderr so that errors stay one line; the user's own
+    OPENCV_LOG_LEVEL / OPENCV_FFMPEG_LOGLEVEL settings win."""
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when FFmpeg starts
+    if "OPENCV_LOG_LEVEL" in os.environ:
+        yield
+        return
+    previous = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(previous)
 
 
 @dataclass(frozen=True)
@@ -47,8 +130,11 @@ class VideoSource:
         self.live = kind != "file"
         self.init_box: tuple[float, float, float, float] | None = None
         self.skipped = 0
+        self.missing = 0  # frames a file's header promised but that never came (a truncated file)
         target: int | str = int(spec) if spec.isdigit() else spec
-        self._cap = cv2.VideoCapture(target)
+        self._quiet = QuietDecoder()
+        with self._quiet:
+            self._cap = cv2.VideoCapture(target)
         if not self._cap.isOpened():
             what = "cannot read video file" if kind == "file" else f"cannot open {kind}"
             raise SourceError(f"{what} '{spec}'")
@@ -58,9 +144,22 @@ class VideoSource:
         self.length: int | None = count if count > 0 else None
 
     def frames(self) -> Iterator[Frame]:
+        self._read = 0
+        yield from self._frames()
+        self._count_missing()  # only at the real end: a generator closed early (--max-frames) is not truncated
+
+    def _count_missing(self) -> None:
+        """A file that ends before its frame count is truncated: say so, and count the frames as skipped."""
+        if self.live or self.length is None or self._read >= self.length or self.missing:
+            return
+        self.missing = self.length - self._read
+        self.skipped += self.missing
+
+    def _frames(self) -> Iterator[Frame]:
         index, failures = 0, 0
         while True:
-            ok, image = self._cap.read()
+            with self._quiet:
+                ok, image = self._cap.read()
             if ok and image is not None and image.size:
                 if self.live:
                     stamp = time.time()
@@ -69,6 +168,7 @@ class VideoSource:
                     self.skipped += failures
                     stamp = index / self.fps if self.fps else self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000
                 failures = 0
+                self._read = index + 1
                 yield Frame(index, stamp, image)
                 index += 1
                 continue
@@ -92,6 +192,7 @@ class VideoSource:
 
     def close(self) -> None:
         self._cap.release()
+        self._quiet.close()
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -151,7 +252,7 @@ class FolderSource:
 
     def frames(self) -> Iterator[Frame]:
         for index, path in enumerate(self.files):
-            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            image = read_image(path)
             if image is None:
                 if index == 0:
                     raise SourceError(f"{path}: cannot read the first image")

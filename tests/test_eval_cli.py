@@ -133,7 +133,7 @@ def test_nano_without_weights_is_one_line_exit_2(bench, tmp_path, capsys):
     line = _one_error_line(capsys)
     assert "nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx" in line and str(empty) in line
     assert main(["run", "--tracker", "csrt", "--nano-dir", str(empty), "--dataset", str(bench), "--results",
-                 str(tmp_path), "--no-progress"]) == 1
+                 str(tmp_path), "--no-progress"]) == 2
     assert "--nano-dir does not apply" in _one_error_line(capsys)
 
 
@@ -143,24 +143,24 @@ def _one_error_line(capsys) -> str:
     return err[0]
 
 
-def test_bad_input_gives_one_line_and_non_zero_exit(bench, tmp_path, capsys):
-    assert main(["score", "--dataset", str(tmp_path / "nope"), str(tmp_path)]) == 1
+def test_bad_input_gives_one_line_and_exit_2(bench, tmp_path, capsys):
+    assert main(["score", "--dataset", str(tmp_path / "nope"), str(tmp_path)]) == 2
     assert "no such dataset folder" in _one_error_line(capsys)
     (tmp_path / "empty").mkdir()
-    assert main(["score", "--dataset", str(bench), str(tmp_path / "empty")]) == 1
+    assert main(["score", "--dataset", str(bench), str(tmp_path / "empty")]) == 2
     assert "no result files for bench" in _one_error_line(capsys)
     short = tmp_path / "short" / "T"
     short.mkdir(parents=True)
     for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
         (short / f"{seq}.txt").write_text("1,2,3,4\n")
-    assert main(["score", "--dataset", str(bench), str(short)]) == 1
+    assert main(["score", "--dataset", str(bench), str(short)]) == 2
     assert "1 boxes, but seq001_day has 4" in _one_error_line(capsys)
-    assert main(["generate", "--out", str(bench), "--sequences", "1"]) == 1
+    assert main(["generate", "--out", str(bench), "--sequences", "1"]) == 2
     assert "not an empty folder" in _one_error_line(capsys)
 
 
 def test_run_without_a_model_explains_that_none_ships(bench, tmp_path, capsys, no_shipped_model):
-    assert main(["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 1
+    assert main(["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 2
     assert "no trained default model" in _one_error_line(capsys)
 
 

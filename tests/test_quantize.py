@@ -26,7 +26,10 @@ TINY_ARGS = ["--calibration-frames", "3", "--eval-sequences", "1", "--eval-frame
 
 
 def _run(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(list(argv))
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:  # a usage error, found by the argument parser
+        code = exc.code
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -130,7 +133,7 @@ def test_cli_exports_and_quantizes_a_checkpoint(tmp_path, capsys, lite_checkpoin
     (["--quantize", "int8", "--calibration", "{folder}", "--calibration-init", "1,2,0,5"], "must be positive"),
     (["--quantize", "int8", "--calibration", "{video}"], "give --calibration-init"),
     (["--quantize", "int8", "--calibration-init", "1,2,3,4"], "applies to --calibration"),
-    (["--quantize", "int8", "--calibration-frames", "0"], "calibration frames must be at least 1"),
+    (["--quantize", "int8", "--calibration-frames", "0"], "--calibration-frames: expected an integer >= 1"),
     (["--calibration", "{folder}"], "applies to --quantize int8 only"),
     (["--quantize", "int8", "--steps", "3"], "applies to checkpoints"),
 ])

@@ -19,7 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..cli import positive_int
-from ..errors import InputError, ModelError
+from ..errors import InputError, ModelError, OneLineParser
+from ..sources import quiet_opencv
 from .datasets import Dataset, DatasetError, load_dataset
 from .evaluate import (
     EvalError,
@@ -53,7 +54,9 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description="One-pass evaluation of single-object trackers.")
+    parser = OneLineParser(prog=PROG, description="One-pass evaluation of single-object trackers.",
+                           epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
+                                  "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate,data}")
 
     common = argparse.ArgumentParser(add_help=False)
@@ -72,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: ../shared/weights/nanotrack/v2 beside the checkout)")
     run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO)")
     run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
-    run.add_argument("--threads", type=positive_int, help="onnxruntime threads")
+    run.add_argument("--threads", type=positive_int,
+                     help="onnxruntime threads (default: one per physical core)")
     run.add_argument("--compare", nargs="+", type=Path, default=[], metavar="DIR", help="more result folders")
     run.add_argument("--plots", type=Path, help="plot folder (default: <results>/plots/<dataset>)")
     run.add_argument("--no-plots", action="store_true", help="do not draw plots")
@@ -87,9 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
     gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
-    gen.add_argument("--sequences", type=positive_int, default=16)
-    gen.add_argument("--frames", type=positive_int, default=120)
-    gen.add_argument("--seed", type=int, default=0)
+    gen.add_argument("--sequences", type=positive_int, default=16, help="sequences (default 16)")
+    gen.add_argument("--frames", type=positive_int, default=120, help="frames per sequence (default 120)")
+    gen.add_argument("--seed", type=int, default=0, help="first sequence's seed (default 0)")
     gen.add_argument("--split", choices=tuple(PHOTO_SPLITS), default="test", help="photo split (default: test)")
     gen.add_argument("--size", type=_size, default=(640, 360), metavar="WxH", help="frame size (default 640x360)")
     gen.add_argument("--workers", type=positive_int, help="processes (default: one per core)")
@@ -221,7 +225,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         try:
             scores.append(score_folder(dataset, folder, other))
         except EvalError as exc:
-            print(f"note: not compared: {exc}", file=sys.stderr)
+            print(f"{PROG}: note: not compared: {exc}", file=sys.stderr)
     plots = None if args.no_plots else (args.plots or args.results / "plots" / dataset.name)
     report(dataset, scores, args.attributes, plots, args.sequences)
     return 0
@@ -330,14 +334,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "score": cmd_score, "generate": cmd_generate, "data": cmd_data}
     try:
-        return commands[args.command](args)
+        with quiet_opencv():
+            return commands[args.command](args)
     except (DatasetError, EvalError, SceneError, ModelError, InputError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 1
+        return 2
     except OSError as exc:
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"{PROG}: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 1
+        return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; finished sequences are kept, run again to resume", file=sys.stderr)
         return 130

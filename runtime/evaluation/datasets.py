@@ -77,12 +77,19 @@ class Dataset:
         return replace(self, sequences=kept)
 
 
-def read_boxes(path: Path) -> np.ndarray:
-    """(N, 4) float64 boxes from a text file of x, y, w, h lines (comma, tab or space separated)."""
+def read_text(path: Path) -> str:
+    """A dataset's text file; unreadable or not text (a damaged file) is one DatasetError naming it."""
     try:
-        text = Path(path).read_text()
+        return Path(path).read_text()
     except OSError as exc:
         raise DatasetError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not a text file") from None
+
+
+def read_boxes(path: Path) -> np.ndarray:
+    """(N, 4) float64 boxes from a text file of x, y, w, h lines (comma, tab or space separated)."""
+    text = read_text(path)
     rows = []
     for number, line in enumerate(text.splitlines(), 1):
         line = line.strip()
@@ -122,7 +129,8 @@ def parse_attributes(text: str, source: str) -> tuple[str, ...]:
 
 
 def _warn(message: str) -> None:
-    print(f"warning: {message}", file=sys.stderr)
+    prog = Path(sys.argv[0]).name if Path(sys.argv[0]).name.startswith("dadiff-") else "dadiff-eval"
+    print(f"{prog}: warning: {message}", file=sys.stderr)  # the commands' one style (eval, bench, export)
 
 
 def _make_sequence(name: str, frames: tuple[Path, ...], boxes: np.ndarray, source: Path) -> Sequence:
@@ -143,7 +151,7 @@ def _official(path: Path) -> list[Sequence]:
         sequence = _make_sequence(folder.name, list_frames(folder), read_boxes(gt), gt)
         for att in (path / "att" / f"{folder.name}.txt", path / "attribute" / f"{folder.name}.txt"):
             if att.is_file():
-                sequence = replace(sequence, attributes=parse_attributes(att.read_text(), str(att)))
+                sequence = replace(sequence, attributes=parse_attributes(read_text(att), str(att)))
                 break
         sequences.append(sequence)
     return sequences
@@ -166,7 +174,7 @@ def _otb(path: Path) -> list[Sequence]:
 def _got10k(path: Path) -> list[Sequence]:
     listed = path / "list.txt"
     if listed.is_file():
-        names = [line.strip() for line in listed.read_text().splitlines() if line.strip()]
+        names = [line.strip() for line in read_text(listed).splitlines() if line.strip()]
         folders = [path / n for n in names]
     else:
         folders = sorted(p for p in path.iterdir() if (p / "groundtruth.txt").is_file())

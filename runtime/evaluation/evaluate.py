@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from ..sources import read_image
 from .datasets import Dataset, DatasetError, load_dataset, read_boxes
 from .metrics import Scores, SequenceCurves, summarise
 
@@ -217,7 +218,7 @@ class RunReport:
 
 
 def _read_frame(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    image = read_image(path)  # libjpeg's own warnings on a damaged frame stay off stderr
     if image is None:
         raise EvalError(f"{path}: cannot read image")
     return image

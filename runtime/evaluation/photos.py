@@ -34,7 +34,8 @@ def _photos(split: str) -> tuple[tuple[str, np.ndarray], ...]:
     try:
         import skimage.data
     except ImportError:
-        raise SceneError("scikit-image is needed for the scene photos: pip install scikit-image") from None
+        raise SceneError("the generated night scenes need scikit-image's photos, which are not installed here: "
+                         'pip install "dadiff[eval]"') from None
     out = []
     for name in PHOTO_SPLITS[split]:
         func, index = _PHOTO_LOADERS.get(name, (name, None))

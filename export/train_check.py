@@ -1,0 +1,92 @@
+"""Type and range checks of a `dadiff-train` config, before any training (and without torch).
+
+Every key is checked against the type of its default in TrainConfig, so `steps = "3"` or `day = "scenes"`
+is one line naming the file and the key instead of a traceback minutes into a run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Any
+
+from .config import FAMILIES, ModelConfig, default_config, validate_config
+
+# (low, inclusive) per numeric key; keys not listed only need the right type.
+MINIMUM: dict[str, tuple[float, bool]] = {
+    "steps": (1, True), "batch_size": (2, True), "workers": (0, True), "warmup_steps": (0, True),
+    "checkpoint_every": (1, True), "freeze_backbone_blocks": (0, True), "lr": (0, False),
+    "backbone_lr_mult": (0, True), "weight_decay": (0, True), "disc_lr": (0, False), "disc_poly_power": (0, True),
+    "lambda_trc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True), "grad_clip": (0, False),
+    "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
+}
+CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
+                                       "optimizer": ("sgd", "adamw")}
+
+
+def _kind(default: Any) -> str:
+    if isinstance(default, bool):
+        return "true or false"
+    if isinstance(default, int):
+        return "an integer"
+    if isinstance(default, float):
+        return "a number"
+    if isinstance(default, dict):
+        return "a table"
+    if isinstance(default, list):
+        return "a list of tables"
+    return "a string"  # str, or None for optional paths (TOML has no null)
+
+
+def _fits(value: Any, kind: str) -> bool:
+    if kind == "true or false":
+        return isinstance(value, bool)
+    if kind == "an integer":
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind == "a number":
+        return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if kind == "a table":
+        return isinstance(value, dict)
+    if kind == "a list of tables":
+        return isinstance(value, list) and all(isinstance(v, dict) for v in value)
+    return isinstance(value, str)
+
+
+def _check_range(key: str, value: Any) -> None:
+    if key in MINIMUM:
+        low, inclusive = MINIMUM[key]
+        if value < low or (not inclusive and value == low):
+            raise ValueError(f"'{key}' is {value!r}; expected {'>=' if inclusive else '>'} {low:g}")
+    if key in CHOICES and value not in CHOICES[key]:
+        raise ValueError(f"'{key}' is {value!r}; expected one of {', '.join(CHOICES[key])}")
+
+
+def _check_model(values: dict[str, Any]) -> None:
+    """`model = {...}` overrides: known ModelConfig keys whose result the exporter would accept."""
+    overrides = values.get("model") or {}
+    known = {f.name for f in fields(ModelConfig)} - {"family", "tracker"}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"'model' has unknown keys {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+    family = values.get("family", "dadiff-lite")
+    try:
+        validate_config(replace(default_config(family), **overrides))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"'model': {e}") from None
+
+
+def check_train_values(defaults: Any, values: dict[str, Any], path: str | Path) -> None:
+    """ValueError `<path>: '<key>' is <value>; expected ...` for the first bad key of `values`."""
+    try:
+        for key, value in values.items():
+            kind = _kind(getattr(defaults, key))
+            if not _fits(value, kind):
+                raise ValueError(f"'{key}' is {value!r}; expected {kind}")
+            _check_range(key, value)
+        for i, source in enumerate(values.get("day") or []):
+            if not isinstance(source.get("kind"), str):
+                raise ValueError(f"'day' entry {i + 1} has no 'kind' (e.g. {{kind = \"scenes\"}})")
+        _check_model(values)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None

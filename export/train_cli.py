@@ -1,0 +1,109 @@
+"""`dadiff-train` entry point: arguments and the config keys, checked before torch loads.
+
+`--help` and usage errors stay fast (importing torch takes seconds), and a companion computer without the
+`export` extra gets one line naming what to install instead of a ModuleNotFoundError.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from dadiff.runtime.errors import OneLineParser
+
+PROG = "dadiff-train"
+EXPORT_EXTRA = 'pip install "dadiff[export]"'
+
+# key, default, what it does: the TrainConfig fields (tests/test_reliability_train.py keeps them in step)
+CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
+    ("out", '"runs/lite"', "output folder: last.pt (resume), final.pt (export this), log.csv"),
+    ("stage", '"dadiff"', '"baseline" (tracker alone, day pairs) or "dadiff" (with the DaDiff block)'),
+    ("family", '"dadiff-lite"', "dadiff-lite, dadiff-mobile or dadiff-ban-r50"),
+    ("init", '"imagenet"', '"imagenet" or a dadiff checkpoint to start from (e.g. the baseline\'s final.pt)'),
+    ("model", "{}", "model config overrides, e.g. {align = \"none\", ddim_steps = 4}"),
+    ("day", '[{kind = "scenes", split = "train"}]', "day data: kind scenes, got10k, otb, sequences or images"),
+    ("night", "(rendered)", "folder of night images or videos; default: the day frames rendered at night"),
+    ("steps", "1000", "training steps (>= 1)"),
+    ("batch_size", "16", "pairs per step and process (>= 2)"),
+    ("workers", "0", "data loader processes"),
+    ("optimizer", '"sgd"', '"sgd" (the release) or "adamw"'),
+    ("lr", "0.0015", "base learning rate (> 0)"),
+    ("backbone_lr_mult", "0.1", "backbone learning-rate factor"),
+    ("warmup_steps", "50", "linear warm-up steps"),
+    ("weight_decay", "0.0001", "weight decay"),
+    ("freeze_backbone_blocks", "5", "EfficientNet-Lite0 blocks 0..N-1 kept at ImageNet"),
+    ("disc_lr", "0.005", "discriminator learning rate (paper: 0.005)"),
+    ("disc_poly_power", "0.8", "discriminator poly decay power"),
+    ("lambda_trc", "1.0", "tracking loss weight"),
+    ("lambda_adv", "0.1", "adversarial loss weight"),
+    ("lambda_align", "1.0", "alignment loss weight"),
+    ("adversarial", "true", "ablation switch: the adversarial loss"),
+    ("align_loss", "true", "ablation switch: the alignment loss"),
+    ("grad_clip", "10.0", "gradient norm clip (> 0)"),
+    ("checkpoint_every", "100", "steps between last.pt saves (>= 1)"),
+    ("seed", "0", "random seed"),
+    ("teacher", "(none)", "NanoTrack v3 ONNX folder to distil from (stride-16 families)"),
+    ("lambda_distill", "1.0", "teacher response distillation weight"),
+    ("lambda_feature", "0.5", "teacher search-feature distillation weight"),
+    ("lambda_night_trc", "0.0", "tracking loss on the rendered night pairs too (their boxes are the day boxes)"),
+)
+
+
+def config_help() -> str:
+    rows = "\n".join(f"  {key:<23} {default:<38} {what}" for key, default, what in CONFIG_KEYS)
+    return ("config keys (top level, or inside [train], [loss], [data], [output] tables; types are checked):\n"
+            f"{rows}\n\nFinished runs write <out>/final.pt: export it with dadiff-export <out>/final.pt. "
+            f"Exit codes: 0 done or stopped by --max-steps/--max-minutes (resume with the same command), 2 bad "
+            f"input (one '{PROG}: error:' line), 130 interrupted.")
+
+
+def _positive(kind: type) -> object:
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            value = 0
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = OneLineParser(prog=PROG, description="The paper's two-stage training, resumable, single process or "
+                      "torchrun (needs the export extra: torch).", epilog=config_help(),
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", required=True, help="training config (TOML); examples in dadiff/export/configs/")
+    p.add_argument("--max-steps", type=_positive(int),
+                   help="stop after this many steps of this run (resume later; default: run to 'steps')")
+    p.add_argument("--out", help="override the config's output folder")
+    p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
+    p.add_argument("--max-minutes", type=_positive(float),
+                   help="stop after this many minutes of this run (resume later; default: no limit)")
+    return p
+
+
+def finish_line(step: int, steps: int, out: Path) -> str:
+    """What the run leaves: final.pt to export when done, last.pt to resume from otherwise."""
+    if step >= steps:
+        return f"step {step}/{steps}; done: export {out / 'final.pt'} with dadiff-export"
+    return f"stopped at step {step}/{steps}; resume with the same command (state in {out / 'last.pt'})"
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    build_parser().parse_args(args)  # --help and usage errors before torch loads
+    try:
+        from . import train
+    except ModuleNotFoundError as e:
+        print(f"{PROG}: error: training needs PyTorch, which is not installed here (no module {e.name!r}): "
+              f"{EXPORT_EXTRA}", file=sys.stderr)
+        return 2
+    return train.main(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

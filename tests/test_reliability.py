@@ -1,0 +1,349 @@
+"""Issue 13 on the onboard side: no data lost, no traceback for a user error, one error style.
+
+Each test names the failure it guards against; before the fix each one failed (a traceback, exit 0 with
+a clobbered input, a silent run, a usage block).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from dadiff.drone.cli import mavlink_conn
+from dadiff.drone.link import parse_datagram
+from dadiff.drone.mav import mavlink
+from dadiff.runtime import cli
+from dadiff.runtime.cpu import INT8_WARNING, cpu_flags, int8_saturates, int8_warning
+from dadiff.runtime.outputs import OutputError, TrackLog
+from dadiff.runtime.sources import Frame, read_image
+from runtime_models import write_corr_model
+
+REPO = Path(__file__).resolve().parents[1]
+BOX = "40,40,20,15"
+
+
+def _write_video(path: Path, frames: int, fourcc: str = "mp4v") -> Path:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 25.0, (160, 120))
+    for i in range(frames):
+        image = np.full((120, 160, 3), 30, np.uint8)
+        cv2.rectangle(image, (40 + i, 40), (60 + i, 55), (220, 220, 220), -1)
+        writer.write(image)
+    writer.release()
+    return path
+
+
+@pytest.fixture(scope="module")
+def media(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("reliability")
+    avi = _write_video(root / "night.avi", 40, "MJPG")
+    truncated = root / "truncated.avi"
+    data = avi.read_bytes()
+    truncated.write_bytes(data[: len(data) // 2])
+    return {"root": root, "video": _write_video(root / "night.mp4", 12), "truncated": truncated,
+            "model": write_corr_model(root / "model")}
+
+
+def _one_error(capsys: pytest.CaptureFixture, prog: str = "dadiff-run") -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"{prog}: error: "), err
+    return err[0]
+
+
+def test_save_video_over_the_input_is_refused_and_the_input_kept(media, tmp_path, capsys) -> None:
+    same = tmp_path / "same.mp4"
+    same.write_bytes(media["video"].read_bytes())
+    before = same.read_bytes()
+    argv = ["--video", str(same), "--init", BOX, "--model", str(media["model"]), "--max-frames", "5"]
+    assert cli.main([*argv, "--save-video", str(same)]) == 2  # was: exit 0 and a 3-frame file in its place
+    assert "names the input video" in _one_error(capsys)
+    assert same.read_bytes() == before
+    log = tmp_path / "log.csv"
+    link = tmp_path / "alias.mp4"
+    link.symlink_to(same)
+    assert cli.main([*argv, "--save-video", str(link), "--output", str(log)]) == 2
+    assert same.read_bytes() == before and not log.exists()
+
+
+def test_service_mode_refuses_to_overwrite_its_input_too(media, tmp_path, capsys) -> None:
+    same = tmp_path / "same.mp4"
+    same.write_bytes(media["video"].read_bytes())
+    argv = ["--video", str(same), "--mavlink", "udpin:127.0.0.1:9", "--model", str(media["model"]),
+            "--save-video", str(same)]
+    assert cli.main(argv) == 2
+    assert "names the input video" in _one_error(capsys)
+    assert same.read_bytes() == media["video"].read_bytes()
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_full_disk_on_output_is_one_line(media, tmp_path, capsys) -> None:
+    full = tmp_path / "full.csv"
+    full.symlink_to("/dev/full")
+    argv = ["--video", str(media["video"]), "--init", BOX, "--model", str(media["model"]), "--output", str(full)]
+    assert cli.main(argv) == 2  # was: three chained OSError 28 tracebacks
+    assert "No space left on device" in _one_error(capsys)
+
+
+def test_track_log_that_fails_mid_run_reports_once_and_keeps_rows(tmp_path) -> None:
+    log = TrackLog(tmp_path / "t.csv")
+    frame = Frame(0, 0.0, np.zeros((4, 4, 3), np.uint8))
+    from dadiff.runtime.outputs import Record
+
+    log.write(frame, Record((1, 2, 3, 4), 0.9, "tracking"))
+
+    class Full:
+        def writerow(self, row: object) -> None:
+            raise OSError(28, "No space left on device")
+
+    log._csv = Full()  # type: ignore[assignment]
+    with pytest.raises(OutputError, match="the first 1 rows were saved"):
+        log.write(frame, Record((1, 2, 3, 4), 0.9, "tracking"))
+    log.write(frame, Record((1, 2, 3, 4), 0.9, "tracking"))  # no second error
+    log.close()
+    assert (tmp_path / "t.csv").read_text().count("\n") == 2  # header + the row written before the failure
+
+
+def test_config_that_is_not_utf8_is_one_line(tmp_path, capsys) -> None:
+    config = tmp_path / "bad.toml"
+    config.write_bytes(b'video = "\xff\xfe"\n')
+    assert cli.main(["--config", str(config)]) == 2  # was: UnicodeDecodeError traceback
+    assert "not a text file" in _one_error(capsys)
+
+
+def test_demo_out_naming_a_file_is_one_line(tmp_path, capsys) -> None:
+    target = tmp_path / "afile"
+    target.write_text("x")
+    assert cli.main(["--demo", "--demo-out", str(target)]) == 2  # was: FileExistsError traceback
+    assert "--demo-out exists and is not a folder" in _one_error(capsys)
+
+
+def test_sigterm_during_demo_stops_cleanly(monkeypatch, tmp_path, capsys) -> None:
+    import dadiff.runtime.evaluation.demo as demo
+
+    def killed(*args: object, **kw: object) -> dict:
+        os.kill(os.getpid(), signal.SIGTERM)  # what a service manager sends
+        raise AssertionError("SIGTERM did not stop the demo")
+
+    monkeypatch.setattr(demo, "run_demo", killed)
+    assert cli.main(["--demo", "--demo-out", str(tmp_path / "d")]) == 130  # was: killed, no cleanup
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_negative_init_box_needs_no_equals_sign(media, tmp_path, capsys) -> None:
+    out = tmp_path / "t.csv"
+    argv = ["--video", str(media["video"]), "--init", "-5,-5,15,9", "--model", str(media["model"]),
+            "--max-frames", "3", "--output", str(out)]
+    assert cli.main(argv) == 0, capsys.readouterr().err  # was: "expected one argument" and no hint
+    assert out.read_text().splitlines()[1].split(",")[2:6] == ["-4.5", "-4.5", "15.0", "9.0"]
+    assert cli.join_negative_boxes(["--init", "-5,1,2,3", "--seed", "-1"]) == ["--init=-5,1,2,3", "--seed", "-1"]
+
+
+def test_truncated_video_is_reported_not_silent(media, capsys) -> None:
+    argv = ["--video", str(media["truncated"]), "--init", BOX, "--model", str(media["model"])]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert "truncated or damaged file" in captured.err  # was: exit 0 and "0 skipped"
+    assert " 0 skipped" not in captured.out
+
+
+def test_max_frames_is_not_truncation(media, capsys) -> None:
+    argv = ["--video", str(media["video"]), "--init", BOX, "--model", str(media["model"]), "--max-frames", "4"]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert "truncated" not in captured.err and " 0 skipped" in captured.out
+
+
+def test_damaged_jpeg_warnings_stay_off_stderr(tmp_path, capfd) -> None:
+    image = np.random.default_rng(0).integers(0, 255, (64, 64, 3), np.uint8)
+    cv2.imwrite(str(tmp_path / "a.jpg"), image)
+    data = (tmp_path / "a.jpg").read_bytes()
+    (tmp_path / "a.jpg").write_bytes(data[: len(data) // 2])
+    read_image(tmp_path / "a.jpg")
+    assert "JPEG" not in capfd.readouterr().err  # was: "Premature end of JPEG file" from libjpeg
+
+
+@pytest.mark.parametrize("conn", ["foo:bar", "udpin:0.0.0.0", "udpout:host:port", "tcp::5760", "/dev/", "x,57600",
+                                  "/dev/ttyS0,fast", "udpin:1.2.3.4:70000"])
+def test_mavlink_connection_strings_are_checked(conn: str, media, capsys) -> None:
+    assert cli.main(["--video", str(media["video"]), "--mavlink", conn]) == 2  # was: exit 0 without a link
+    assert "argument --mavlink: expected" in _one_error(capsys)
+
+
+@pytest.mark.parametrize("conn", ["udpin:0.0.0.0:14560", "udpout:127.0.0.1:14550", "tcp:localhost:5760",
+                                  "tcpin:0.0.0.0:5760", "/dev/ttyAMA0,921600", "/dev/serial0", "COM3,57600"])
+def test_real_connection_strings_pass(conn: str) -> None:
+    assert mavlink_conn(conn) == conn
+
+
+def test_junk_before_a_frame_does_not_cost_the_frame() -> None:
+    sender = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    good = mavlink.MAVLink_command_long_message(1, 100, 511, 0, 275, 0, 0, 0, 0, 0, 0).pack(sender)
+    rx = mavlink.MAVLink(None)
+    rx.robust_parsing = True
+    for junk in (b"\x01\x02", b"\xfd\xff\x00\x00", b"\xfd\x03" + bytes(9), b"\xfe\x05zz", b"\xfd" * 40):
+        kinds = [m.get_type() for m in parse_datagram(rx, junk + good)]
+        assert kinds[-1] == "COMMAND_LONG" and kinds.count("COMMAND_LONG") == 1, (junk[:4], kinds)
+    assert [m.get_type() for m in parse_datagram(rx, good)] == ["COMMAND_LONG"]
+    flood = parse_datagram(rx, b"\xfd" * 60000 + good)  # the work per datagram stays bounded
+    assert [m.get_type() for m in flood] == ["BAD_DATA"]
+
+
+def test_int8_saturation_is_detected_from_cpu_flags() -> None:
+    assert cpu_flags("processor: 0\nflags\t: fpu avx2 avx512_vnni\n") == {"fpu", "avx2", "avx512_vnni"}
+    assert int8_saturates("x86_64", "flags: avx2 avx512f")
+    assert not int8_saturates("x86_64", "flags: avx2 avx_vnni")
+    assert not int8_saturates("aarch64", "flags: neon")
+    assert not int8_saturates("x86_64", "")  # unknown: no warning
+
+
+def test_int8_model_on_a_saturating_cpu_warns(monkeypatch, media, capsys) -> None:
+    import dadiff.runtime.cpu as cpu
+
+    monkeypatch.setattr(cpu, "int8_saturates", lambda: True)
+    assert int8_warning({"precision": "int8"}) == INT8_WARNING
+    assert int8_warning({"precision": "int8", "quantization": '{"reduce_range": true}'}) is None
+    assert int8_warning({"precision": "fp32"}) is None
+    model = write_corr_model(media["root"] / "int8ish", meta={"precision": "int8"})
+    argv = ["--video", str(media["video"]), "--init", BOX, "--model", str(model), "--max-frames", "2"]
+    assert cli.main(argv) == 0
+    assert "warning: this CPU has no AVX-512 VNNI" in capsys.readouterr().err
+
+
+def test_rejected_commands_are_logged_throttled(caplog) -> None:
+    from dadiff.drone.camera import CameraComponent, CameraSettings
+    from dadiff.drone.tracking import TrackFeed
+
+    camera = CameraComponent(CameraSettings(100, 10.0), TrackFeed(), lambda: 0)
+    sender = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    with caplog.at_level(logging.INFO, logger="dadiff.drone.camera"):
+        for _ in range(500):
+            msg = mavlink.MAVLink_command_long_message(1, 100, mavlink.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0,
+                                                       float("nan"), 0, 0, 0, 0, 0, 0)
+            msg.pack(sender)
+            camera.handle(msg, 1, 0.0)
+    assert len([r for r in caplog.records if "command" in r.getMessage()]) <= 2  # was: 500 lines
+
+
+HELP_CASES = [
+    ("dadiff.runtime.cli", "dadiff-run"),
+    ("dadiff.runtime.evaluation.cli", "dadiff-eval"),
+    ("dadiff.export.cli", "dadiff-export"),
+    ("dadiff.export.train_cli", "dadiff-train"),
+    ("dadiff.runtime.bench_cli", "dadiff-bench"),
+]
+
+
+@pytest.mark.parametrize(("module", "prog"), HELP_CASES)
+def test_usage_errors_are_one_line_exit_2(module: str, prog: str, capsys) -> None:
+    main = __import__(module, fromlist=["main"]).main
+    try:
+        code = main(["--no-such-option"])
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2  # was: the whole usage block (export, eval, bench) and exit 1 (eval)
+    assert _one_error(capsys, prog).endswith(f"(see {prog} --help)")
+
+
+BLOCK_TORCH = """
+import importlib.abc, sys
+class Blocker(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('torch', 'onnx'):
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+sys.meta_path.insert(0, Blocker())
+from MODULE import main
+sys.exit(main(ARGV))
+"""
+
+
+@pytest.mark.parametrize(("module", "prog", "argv"), [
+    ("dadiff.export.cli", "dadiff-export", ["model.pt"]),
+    ("dadiff.export.train_cli", "dadiff-train", ["--config", "x.toml"]),
+])
+def test_without_torch_export_and_train_say_what_to_install(module: str, prog: str, argv: list[str]) -> None:
+    def run(args: list[str]) -> subprocess.CompletedProcess:
+        code = BLOCK_TORCH.replace("MODULE", module).replace("ARGV", repr(args))
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO)
+
+    helped = run(["--help"])
+    assert helped.returncode == 0 and "usage:" in helped.stdout  # --help without torch (it loaded first before)
+    failed = run(argv)
+    assert failed.returncode == 2, failed.stderr  # was: ModuleNotFoundError traceback
+    assert failed.stderr.strip().splitlines() == [failed.stderr.strip()]
+    assert failed.stderr.startswith(f"{prog}: error: ") and 'pip install "dadiff[export]"' in failed.stderr
+
+
+def test_help_texts_state_defaults() -> None:
+    text = cli.build_parser().format_help()
+    assert "one per physical core" in text and "CPU count" not in text
+    for fragment in ("horizontal speed limit (default 3)", "rotate the log file at this size (default 10000000)",
+                     "rotated log files kept (default 5)", "(default: INFO)", "(default: ./dadiff-demo)"):
+        assert fragment in " ".join(text.split()), fragment
+    from dadiff.runtime.evaluation.cli import build_parser
+
+    sub = build_parser()._subparsers._group_actions[0].choices["generate"].format_help()  # type: ignore[union-attr]
+    assert "sequences (default 16)" in sub and "frames per sequence (default 120)" in sub
+
+
+def test_demo_folder_is_ignored_by_git() -> None:
+    assert "/dadiff-demo/" in (REPO / ".gitignore").read_text().split()
+
+
+BLOCK_SKIMAGE = """
+import importlib.abc, sys
+class Blocker(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] == 'skimage':
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+sys.meta_path.insert(0, Blocker())
+from MODULE import main
+sys.exit(main(ARGV))
+"""
+
+
+@pytest.mark.parametrize(("module", "prog", "argv"), [
+    ("dadiff.runtime.bench_cli", "dadiff-bench", ["--frames", "2", "--clip", "3", "--warmup", "0", "--no-nano"]),
+    ("dadiff.runtime.cli", "dadiff-run", ["--demo", "--demo-out", "{tmp}/demo"]),
+    ("dadiff.runtime.evaluation.cli", "dadiff-eval", ["generate", "--out", "{tmp}/gen", "--sequences", "1"]),
+])
+def test_without_scikit_image_the_generator_says_what_to_install(module, prog, argv, tmp_path) -> None:
+    args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    code = BLOCK_SKIMAGE.replace("MODULE", module).replace("ARGV", repr(args))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert done.returncode == 2, done.stderr  # was (dadiff-bench): a SceneError traceback
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"{prog}: error: ") and 'pip install "dadiff[eval]"' in lines[0]
+
+
+def test_sub_command_usage_errors_keep_the_command_prefix(capsys) -> None:
+    from dadiff.runtime.evaluation.cli import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["run", "--dataset", "x"])
+    assert info.value.code == 2
+    assert _one_error(capsys, "dadiff-eval").startswith("dadiff-eval: error: run: the following arguments")
+
+
+@pytest.mark.parametrize("hp", ["search_growth=1e308,search_growth_max=1e308", "search_growth_max=1e308",
+                                "max_scale_step=1e308", "max_scale_change=1e300", "max_aspect_change=1e300"])
+def test_hp_growth_and_size_factors_are_bounded(hp: str, media, capsys) -> None:
+    argv = ["--video", str(media["video"]), "--init", BOX, "--model", str(media["model"]), "--hp", hp]
+    assert cli.main(argv) == 2  # was: accepted, then an OverflowError in crop.py once the target was lost
+    assert "expected [1.0, " in _one_error(capsys)
+
+
+def test_hp_overflow_would_reach_the_crop() -> None:
+    from dadiff.runtime.config import LOST_DEFAULTS, Params
+
+    params = Params(0.4, 0.1, 0.4, **{**LOST_DEFAULTS, "search_growth": 1e308, "search_growth_max": 1e308})
+    with pytest.raises(OverflowError):  # what an unbounded override led to: the reason for the bounds
+        from dadiff.runtime.crop import crop_side
+
+        crop_side(100.0 * params.search_growth * params.search_growth)
