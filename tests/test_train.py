@@ -36,10 +36,11 @@ def config(tmp_path: Path, image_folder: Path, **kw) -> TrainConfig:
 def losses_on(trainer: Trainer, batch) -> dict[str, float]:
     trainer.train_mode()
     with torch.no_grad():
-        l_cls, l_loc, l_align, _, night, _ = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"],
-                                                         False, batch["z_night"], batch["x_night"])
+        out = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"], False, batch["z_night"],
+                            batch["x_night"])
+        night = out["night_states"]
         adv = trainer.disc(night, trainer.state_timesteps(len(night)))
-    return {"cls": l_cls.item(), "loc": l_loc.item(), "adv": ((adv - 0.0) ** 2).sum(1).mean().item()}
+    return {"cls": out["cls"].item(), "loc": out["loc"].item(), "adv": ((adv - 0.0) ** 2).sum(1).mean().item()}
 
 
 def test_steps_decrease_each_loss_and_reach_the_denoiser(tmp_path, image_folder):
@@ -62,8 +63,9 @@ def test_steps_decrease_each_loss_and_reach_the_denoiser(tmp_path, image_folder)
     for g in trainer.disc_opt.param_groups:
         g["lr"] = 1e-3
     with torch.no_grad():
-        _, _, _, day, night = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"], False,
-                                            batch["z_night"], batch["x_night"])
+        out = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"], False, batch["z_night"],
+                            batch["x_night"])
+        day, night = out["day_states"], out["night_states"]
     ts = trainer.state_timesteps(len(day))
     d_first = trainer.discriminator_step(day, night, ts)
     for _ in range(4):
@@ -134,6 +136,24 @@ def test_teacher_distillation_trains_the_mobile_family_and_stays_out_of_the_mode
 
     model_keys = set(load_checkpoint(tmp_path / "final.pt").model.state_dict())
     assert model_keys == set(trainer.net.state_dict()) and not any("adapter" in k for k in model_keys)
+
+
+def test_night_tracking_loss_on_rendered_night_pairs(tmp_path, image_folder):
+    """With lambda_night_trc the rendered night pairs (whose boxes are the day boxes) are tracked too, in the
+    baseline stage as well, and their loss goes down; without it they stay out of the total."""
+    cfg = config(tmp_path, image_folder, stage="baseline", night=None, lambda_night_trc=1.0)
+    trainer = Trainer(cfg)
+    for m in trainer.net.modules():
+        if isinstance(m, torch.nn.Dropout):
+            m.p = 0.0
+    batch = next(iter(data_loader(cfg, trainer.net, 0)))
+    assert bool(batch["paired"].all()) and batch["x_night"].shape == batch["x"].shape
+    first = trainer.step_on(batch)
+    for _ in range(4):
+        logs = trainer.step_on(batch)
+    assert logs["night_cls"] < first["night_cls"] and logs["night_loc"] < first["night_loc"]
+    plain = Trainer(replace(cfg, lambda_night_trc=0.0))
+    assert "night_cls" not in plain.step_on(batch)
 
 
 def test_teacher_needs_a_stride_16_family(tmp_path, image_folder):
