@@ -4,7 +4,7 @@
 # and takes at most 64 MiB of working tree, so a run goes in two steps:
 #
 #   here:   bash export/device_train.sh prepare runs/mobile-baseline
-#           -> .device/: a 24 MiB library pack, the NanoTrack v3 teacher (used where onnxruntime is there), tqdm,
+#           -> .device/: a 16 MiB library pack, the NanoTrack v3 teacher (used where onnxruntime is there), tqdm,
 #              and the run's last.pt (the folder is git-ignored; carry it)
 #   device: run(command="bash export/device_train.sh train export/configs/mobile-baseline.toml 8",
 #               carry=[".device"], timeout_s=600)
@@ -17,7 +17,7 @@ mode=${1:?usage: device_train.sh prepare RUN_DIR | train CONFIG [MINUTES]}
 if [ "$mode" = prepare ]; then
     run=${2:?usage: device_train.sh prepare RUN_DIR}
     rm -rf .device && mkdir -p .device/wheels .device/run
-    dadiff-eval data pack --out .device/library --max-mib 24
+    dadiff-eval data pack --out .device/library --max-mib 16
     cp ../shared/weights/nanotrack/v3/nanotrack_backbone.onnx ../shared/weights/nanotrack/v3/nanotrack_head.onnx \
         .device/ 2>/dev/null || echo "no NanoTrack v3 teacher beside the checkout: the device run trains without it"
     python3 -m pip download -q --no-deps --only-binary :all: -d .device/wheels tqdm   # onnxruntime (27 MB) does not fit

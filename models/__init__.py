@@ -2,7 +2,7 @@
 
 A shipped model is a folder under this package holding `template.onnx` and `search.onnx` (the layout of
 docs/model-format.md) and its MODEL_CARD.md. `DEFAULT_MODEL` names the one used when no model is given:
-the trained dadiff-lite in models/dadiff-lite.
+the trained dadiff-mobile in models/dadiff-mobile (models/dadiff-lite, the earlier default, ships too).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 
 __all__ = ["DEFAULT_MODEL", "GRAPH_FILES", "ModelNotFoundError", "list_models", "resolve"]
 
-DEFAULT_MODEL = "dadiff-lite"
+DEFAULT_MODEL = "dadiff-mobile"
 GRAPH_FILES = ("template.onnx", "search.onnx")
 _HERE = Path(__file__).resolve().parent
 

@@ -27,6 +27,7 @@ class RunStats:
         """Start the clock (at the first frame, so that model loading is not counted)."""
         self.started = time.perf_counter()
         self._window_start, self._window_frames = self.started, 0
+        self._first_window_done = False
 
     def add(self, state: str, latency: float | None = None) -> None:
         """Count one processed frame (latency None for the init frame)."""
@@ -41,8 +42,10 @@ class RunStats:
         if now - self._window_start >= 1.0:
             self.fps_recent = self._window_frames / (now - self._window_start)
             self._window_start, self._window_frames = now, 0
-        elif self.fps_recent is None and now > self._window_start:
-            self.fps_recent = self._window_frames / (now - self._window_start)
+            self._first_window_done = True
+        elif not self._first_window_done and self._window_frames > 1:
+            # until a whole second has passed, the rate so far (one frame alone would read as ~1e5 FPS)
+            self.fps_recent = (self._window_frames - 1) / (now - self._window_start)
 
     @property
     def elapsed(self) -> float:

@@ -405,7 +405,7 @@ def test_generate_cli_writes_source_and_night(tmp_path, monkeypatch, capsys):
     module.open_library = lambda: None
     module.LibraryError = type("LibraryError", (Exception,), {})
     monkeypatch.setitem(sys.modules, "dadiff.runtime.evaluation.library", module)
-    assert main([*args, "--out", str(tmp_path / "lib"), "--source", "library"]) == 1
+    assert main([*args, "--out", str(tmp_path / "lib"), "--source", "library"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "run dadiff-eval data fetch first" in err[0]
     assert not (tmp_path / "lib").exists()

@@ -210,3 +210,18 @@ def test_cache_keeps_only_the_most_recent_graphs(tmp_path: Path) -> None:
         os.utime(entry, (i, i))
     prune(tmp_path)
     assert sorted(p.name for p in tmp_path.glob("*.onnx")) == sorted(f"m{i}.onnx" for i in range(3, KEEP + 3))
+
+
+def test_recent_fps_is_right_before_the_first_second(monkeypatch) -> None:
+    """A clip shorter than a second: the overlay's FPS is the rate so far, not one frame over microseconds
+    (it read 105219 FPS on a 120-frame clip)."""
+    from dadiff.runtime import runstats
+
+    clock = iter([0.0, 1e-5, *(0.01 * k for k in range(1, 10))])
+    monkeypatch.setattr(runstats.time, "perf_counter", lambda: next(clock))
+    stats = runstats.RunStats()
+    stats.add("init")
+    assert stats.fps_recent is None
+    for _ in range(9):
+        stats.add("tracking", 0.01)
+    assert stats.fps_recent == pytest.approx(100.0)

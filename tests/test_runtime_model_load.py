@@ -34,7 +34,7 @@ def test_no_default_model_shipped_yet(no_shipped_model) -> None:
 def test_resolve_paths(good: Path, tmp_path: Path) -> None:
     assert models.resolve(good) == good
     assert models.resolve(str(good / "template.onnx")) == good
-    with pytest.raises(models.ModelNotFoundError, match="model .nope. not found.*shipped: dadiff-lite"):
+    with pytest.raises(models.ModelNotFoundError, match="model .nope. not found.*shipped: dadiff-lite, dadiff-mobile"):
         models.resolve("nope")
     text = tmp_path / "notes.txt"
     text.write_text("x")
@@ -111,10 +111,10 @@ def test_providers(good: Path) -> None:
         OnnxBackend(good, threads=0)
 
 
-def test_the_shipped_default_is_a_trained_lite_model() -> None:
+def test_the_shipped_default_is_a_trained_mobile_model() -> None:
     assert models.DEFAULT_MODEL in models.list_models()
     folder = models.resolve(None)
     assert (folder / "MODEL_CARD.md").is_file()
     tracker = Tracker.load(threads=1)
-    assert tracker.backend.meta["family"] == "dadiff-lite"
-    assert "runs/lite-dadiff/final.pt" in (folder / "MODEL_CARD.md").read_text()
+    assert tracker.backend.meta["family"] == "dadiff-mobile"
+    assert "runs/mobile-dadiff/final.pt" in (folder / "MODEL_CARD.md").read_text()
