@@ -90,9 +90,17 @@ class DaDiffNet(nn.Module):
         aligned = [self.align_track(s[-1]) for s in states]
         return BranchOutput(neck, states, aligned)
 
+    def template_branch(self, z: torch.Tensor) -> BranchOutput:
+        """The branch on a template crop: its own start noise, the neck's centre crop."""
+        return self.branch(z, self.e_zf, template=True)
+
+    def search_branch(self, x: torch.Tensor) -> BranchOutput:
+        """The branch on a search crop: its own start noise, the whole map."""
+        return self.branch(x, self.e_xf, template=False)
+
     def template(self, z: torch.Tensor) -> list[torch.Tensor]:
         """Aligned template features per level (what the head receives)."""
-        return self.branch(z, self.e_zf, template=True).aligned
+        return self.template_branch(z).aligned
 
     def template_kernels(self, z: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]:
         zf = self.template(z)
@@ -101,7 +109,7 @@ class DaDiffNet(nn.Module):
 
     def track(self, x: torch.Tensor, kcls: list[torch.Tensor],
               kloc: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        xf = self.branch(x, self.e_xf, template=False).aligned
+        xf = self.search_branch(x).aligned
         return self.head(xf, kcls, kloc)
 
     def forward(self, z: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -320,7 +320,7 @@ class TrainForward(nn.Module):
     def forward(self, z: torch.Tensor, x: torch.Tensor, label: torch.Tensor, loc_target: torch.Tensor, paired: bool,
                 z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
         net = self.net
-        zb, xb = net.branch(z, net.e_zf, True), net.branch(x, net.e_xf, False)
+        zb, xb = net.template_branch(z), net.search_branch(x)
         cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
         zero = cls.sum() * 0
         out = {"cls": ban_cls_loss(cls, label), "loc": ban_iou_loss(loc, loc_target, label), "align": zero,
@@ -329,7 +329,7 @@ class TrainForward(nn.Module):
                "cls_map": cls, "loc_map": loc, "x_neck": xb.neck[0]}  # the maps and neck: the teacher's losses
         if z_night is None:
             return out
-        zn, xn = net.branch(z_night, net.e_zf, True), net.branch(x_night, net.e_xf, False)
+        zn, xn = net.template_branch(z_night), net.search_branch(x_night)
         out["night_states"] = [s for b in (zn, xn) for level in b.states for s in level]
         if paired:  # rendered from the day frames: the day boxes hold
             cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))

@@ -15,7 +15,7 @@ def test_every_timestep_is_judged_and_gradients_reach_the_denoiser():
     torch.manual_seed(0)
     net = build_model(lite_config().with_steps(4)).train()
     disc = SuccessiveDiscriminator(64)
-    out = net.branch(torch.rand(2, 3, 127, 127) * 255, net.e_zf, template=True)
+    out = net.template_branch(torch.rand(2, 3, 127, 127) * 255)
     states = out.states[0]
     steps = chain_timesteps(net.sampler.start_t, net.sampler.timesteps)
     assert steps == [15, 10, 5, 0, -1] and len(states) == 5

@@ -48,8 +48,8 @@ def test_state_dict_keys_and_shapes_equal_the_release(ban_shapes):
 def test_torch_matches_official_outputs(ban_model, inputs, reference):
     z, x = inputs
     with torch.no_grad():
-        zb = ban_model.branch(torch.from_numpy(z), ban_model.e_zf, template=True)
-        xb = ban_model.branch(torch.from_numpy(x), ban_model.e_xf, template=False)
+        zb = ban_model.template_branch(torch.from_numpy(z))
+        xb = ban_model.search_branch(torch.from_numpy(x))
         cls, loc = ban_model.head(xb.aligned, *ban_model.head.kernels(zb.aligned))
     for i, level in enumerate(LEVELS):
         ref_neck = reference[f"zf_neck{level}"]
