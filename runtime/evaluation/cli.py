@@ -6,6 +6,7 @@ dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
+dadiff-eval tune --model M --dataset D [--dataset D2] [--sequences GLOB] [--grid KEY=V1,V2 ...] [--out trials.csv]
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog=PROG, description="One-pass evaluation of single-object trackers.",
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate,data}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate,data,tune}")
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -111,7 +112,22 @@ def build_parser() -> argparse.ArgumentParser:
         "default: classic for skimage, real for library",
     )
     _add_data_parser(sub)
+    _add_tune_parser(sub)
     return parser
+
+
+def _add_tune_parser(sub: argparse._SubParsersAction) -> None:
+    tune = sub.add_parser("tune", help="search the tracking hyper-parameters on a validation set")
+    tune.add_argument("--dataset", required=True, type=Path, action="append",
+                      help="validation dataset (repeat for several; keep it apart from the sets you report on)")
+    tune.add_argument("--sequences", action="append", metavar="GLOB", help="only sequences matching this pattern")
+    tune.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
+    tune.add_argument("--preset", help="preset to start from (default: the model's)")
+    tune.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2",
+                      help="values to try for one parameter (repeat; default: lr, penalty_k, window_influence)")
+    tune.add_argument("--rounds", type=positive_int, default=2, help="passes over the parameters (default 2)")
+    tune.add_argument("--threads", type=positive_int, help="onnxruntime threads (default: one per physical core)")
+    tune.add_argument("--out", type=Path, help="write every trial to this CSV file")
 
 
 def _add_data_parser(sub: argparse._SubParsersAction) -> None:
@@ -310,6 +326,48 @@ def _pack(cache: Path, args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_tune(args: argparse.Namespace) -> int:
+    from ..onnx_backend import OnnxBackend
+    from ..tracker import Tracker
+    from .tune import (
+        DEFAULT_GRID,
+        best_trial,
+        coordinate_search,
+        load_sequences,
+        parse_grid,
+        track_sequences,
+        write_trials,
+    )
+
+    grid = parse_grid(args.grid) or DEFAULT_GRID
+    sequences = [s for path in args.dataset for s in load_sequences(load_dataset(path).select(args.sequences))]
+    try:
+        from dadiff.models import ModelNotFoundError, resolve
+
+        backend = OnnxBackend(resolve(args.model), threads=args.threads)
+    except ModelNotFoundError as exc:
+        raise ModelError(str(exc)) from None
+    start_params = Tracker(backend, preset=args.preset).params
+    start = {k: getattr(start_params, k) for k in grid}
+
+    def show(trial) -> None:
+        values = ", ".join(f"{k}={v:g}" for k, v in trial.values.items())
+        print(f"{values}: success {trial.scores.success:.3f}, precision {trial.scores.precision:.3f}", flush=True)
+
+    def evaluate(values: dict[str, float]):
+        return track_sequences(Tracker(backend, preset=args.preset, overrides=values), sequences)
+
+    print(f"tuning {', '.join(grid)} on {len(sequences)} sequences ({sum(len(s.frames) for s in sequences)} frames)")
+    trials = coordinate_search(evaluate, start, grid, args.rounds, show)
+    if args.out:
+        write_trials(args.out, trials)
+    best, first = best_trial(trials), trials[0]
+    values = ", ".join(f"{k}={v:g}" for k, v in best.values.items())
+    print(f"best of {len(trials)} trials: {values}: success {best.scores.success:.3f} "
+          f"(start {first.scores.success:.3f})")
+    return 0
+
+
 def cmd_data(args: argparse.Namespace) -> int:
     """`data fetch` and `data list`; library errors exit 2 like other bad input."""
     cache = args.cache or library_root()
@@ -332,7 +390,8 @@ def cmd_data(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "score": cmd_score, "generate": cmd_generate, "data": cmd_data}
+    commands = {"run": cmd_run, "score": cmd_score, "generate": cmd_generate, "data": cmd_data,
+                "tune": cmd_tune}
     try:
         with quiet_opencv():
             return commands[args.command](args)
