@@ -97,6 +97,22 @@ def test_score_json_for_any_result_folder(bench, tmp_path, capsys):
     assert table["Perfect"]["precision"] == 1.0
 
 
+def test_score_against_prints_the_paired_difference(bench, tmp_path, capsys):
+    for name, shift in (("Perfect", 0), ("Shifted", 3)):
+        folder = tmp_path / "mine" / name
+        folder.mkdir(parents=True)
+        for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
+            gt = _gt(bench, seq)
+            gt[1:, 0] += shift  # frame 0 is the init box
+            np.savetxt(folder / f"{seq}.txt", gt, delimiter=",")
+    assert main(["score", "--dataset", str(bench), "--against", "Perfect", str(tmp_path / "mine")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-2] == "success minus Perfect (per-sequence bootstrap, 95% interval):"
+    assert lines[-1].startswith("  Shifted: -0.") and lines[-1].endswith("over 4 sequences")
+    assert main(["score", "--dataset", str(bench), "--against", "Nobody", str(tmp_path / "mine")]) == 2
+    assert "--against Nobody: no such tracker among" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("kind", ["csrt", "kcf"])
 def test_opencv_baselines(bench, tmp_path, capsys, kind):
     if not opencv_available(kind):

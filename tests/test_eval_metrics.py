@@ -16,6 +16,7 @@ from dadiff.runtime.evaluation.metrics import (
     centres,
     iou,
     norm_precision_curve,
+    paired_difference,
     precision_curve,
     success_curve,
     summarise,
@@ -116,3 +117,15 @@ def test_bad_shapes_are_rejected():
         iou([[0, 0, 1]], [[0, 0, 1]])
     with pytest.raises(ValueError, match="no sequences"):
         summarise([])
+
+
+def test_paired_difference_interval_holds_the_mean_and_shrinks_with_agreement():
+    rng = np.random.default_rng(1)
+    theirs = rng.uniform(0.2, 0.8, 40)
+    noisy = paired_difference(theirs + 0.05 + rng.normal(0, 0.2, 40), theirs)
+    steady = paired_difference(theirs + 0.05, theirs)
+    assert noisy.low < noisy.mean < noisy.high and noisy.sequences == 40
+    assert steady.mean == pytest.approx(0.05) and steady.high - steady.low < 1e-9  # every draw is the same gap
+    assert noisy.high - noisy.low > 0.05
+    with pytest.raises(ValueError, match="same non-empty sequences"):
+        paired_difference([0.1, 0.2], [0.1])

@@ -34,6 +34,7 @@ from .evaluate import (
     score_folder,
 )
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
+from .metrics import paired_difference
 from .night import NIGHT_STYLES
 from .photos import PHOTO_SPLITS
 from .plots import write_plots
@@ -89,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--json", action="store_true", help='print {tracker: {"success", "norm_precision", "precision"}}'
     )
     score.add_argument("--plots", type=Path, help="also draw plots into this folder")
+    score.add_argument("--against", metavar="TRACKER",
+                       help="also print each tracker's success minus this one's, with a 95%% bootstrap interval "
+                            "over the sequences")
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
     gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
@@ -247,9 +251,28 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def format_differences(scores: Sequence[TrackerScores], against: str) -> str:
+    """One line per tracker: success minus `against`'s, absolute and relative, with its interval."""
+    base = next((s for s in scores if s.name == against), None)
+    if base is None:
+        raise InputError(f"--against {against}: no such tracker among {', '.join(s.name for s in scores)}")
+    names = list(base.sequences)
+    lines = [f"success minus {against} (per-sequence bootstrap, 95% interval):"]
+    for item in scores:
+        if item is base:
+            continue
+        d = paired_difference([item.sequences[n].success.mean() for n in names],
+                              [base.sequences[n].success.mean() for n in names])
+        relative = 100 * d.mean / base.overall.success if base.overall.success else float("nan")
+        lines.append(f"  {item.name}: {d.mean:+.3f} ({relative:+.1f} %) [{d.low:+.3f}, {d.high:+.3f}] "
+                     f"over {d.sequences} sequences")
+    return "\n".join(lines)
+
+
 def cmd_score(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset).select(args.sequences)
     scores = [score_folder(dataset, folder, name) for name, folder in result_folders(args.dirs, dataset)]
+    differences = format_differences(scores, args.against) if args.against else None
     if args.json:
         table = {
             s.name: {
@@ -260,11 +283,15 @@ def cmd_score(args: argparse.Namespace) -> int:
             for s in scores
         }
         print(json.dumps(table, indent=2))
+        if differences:
+            print(differences, file=sys.stderr)  # stdout stays one JSON document
         if args.plots:
             label = dataset.name + (f" ({' '.join(args.sequences)})" if args.sequences else "")
             write_plots({s.name: s.overall for s in scores}, args.plots, label)
         return 0
     report(dataset, scores, args.attributes, args.plots, args.sequences)
+    if differences:
+        print(differences)
     return 0
 
 

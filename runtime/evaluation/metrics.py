@@ -170,3 +170,30 @@ def summarise(curves: Iterable[SequenceCurves]) -> Scores:
         norm_precision_curve=norm,
         sequences=len(items),
     )
+
+
+@dataclass(frozen=True)
+class PairedDifference:
+    """Mean per-sequence difference of two trackers' success on the same sequences, with a bootstrap
+    interval: how far a gap between two means can be trusted when a single sequence swings by 0.5."""
+
+    mean: float
+    low: float
+    high: float
+    level: float
+    sequences: int
+
+
+def paired_difference(
+    ours: Iterable[float], theirs: Iterable[float], samples: int = 10000, level: float = 0.95, seed: int = 0
+) -> PairedDifference:
+    """Percentile bootstrap over sequences (resampled with replacement, the same draw for both trackers)."""
+    a, b = np.asarray(list(ours), dtype=np.float64), np.asarray(list(theirs), dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 1 or len(a) == 0:
+        raise ValueError(f"paired scores need the same non-empty sequences, got {a.shape} and {b.shape}")
+    diff = a - b
+    draws = np.random.default_rng(seed).integers(0, len(diff), size=(samples, len(diff)))
+    means = diff[draws].mean(axis=1)
+    tail = (1 - level) / 2 * 100
+    low, high = np.percentile(means, [tail, 100 - tail])
+    return PairedDifference(float(diff.mean()), float(low), float(high), level, len(diff))
