@@ -68,6 +68,7 @@ class TrainConfig:
     lambda_distill: float = 1.0           # teacher cls + loc responses (stride-16 families)
     lambda_feature: float = 0.5           # teacher search features through a training-only 1x1 adapter
     lambda_night_trc: float = 0.0         # L_trc on the rendered night pairs too (their boxes are the day boxes)
+    night_styles: list[str] = field(default_factory=lambda: ["real"])  # rendered night: one style per pair
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
@@ -353,7 +354,7 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
                       score_size=tr.score_size, context=tr.context_amount)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
-                        with_night=uses_night(cfg))
+                        with_night=uses_night(cfg), night_styles=cfg.night_styles)
     return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
                       persistent_workers=cfg.workers > 0)
 

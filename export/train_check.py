@@ -11,6 +11,8 @@ from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.evaluation.night import NIGHT_STYLES
+
 from .config import FAMILIES, ModelConfig, default_config, validate_config
 
 # (low, inclusive) per numeric key; keys not listed only need the right type.
@@ -23,6 +25,7 @@ MINIMUM: dict[str, tuple[float, bool]] = {
 }
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw")}
+ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings
 
 
 def _kind(default: Any) -> str:
@@ -35,7 +38,7 @@ def _kind(default: Any) -> str:
     if isinstance(default, dict):
         return "a table"
     if isinstance(default, list):
-        return "a list of tables"
+        return "a list of strings" if default and isinstance(default[0], str) else "a list of tables"
     return "a string"  # str, or None for optional paths (TOML has no null)
 
 
@@ -48,6 +51,8 @@ def _fits(value: Any, kind: str) -> bool:
         return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
     if kind == "a table":
         return isinstance(value, dict)
+    if kind == "a list of strings":
+        return isinstance(value, list) and bool(value) and all(isinstance(v, str) for v in value)
     if kind == "a list of tables":
         return isinstance(value, list) and all(isinstance(v, dict) for v in value)
     return isinstance(value, str)
@@ -60,6 +65,9 @@ def _check_range(key: str, value: Any) -> None:
             raise ValueError(f"'{key}' is {value!r}; expected {'>=' if inclusive else '>'} {low:g}")
     if key in CHOICES and value not in CHOICES[key]:
         raise ValueError(f"'{key}' is {value!r}; expected one of {', '.join(CHOICES[key])}")
+    for item in value if key in ITEM_CHOICES else ():
+        if item not in ITEM_CHOICES[key]:
+            raise ValueError(f"'{key}' has {item!r}; expected items from {', '.join(ITEM_CHOICES[key])}")
 
 
 def _check_model(values: dict[str, Any]) -> None:

@@ -10,7 +10,7 @@ on the fly, so nothing needs to fit in memory.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -252,16 +252,25 @@ class PairStream(IterableDataset):
     """Endless stream of samples; each worker / rank draws from its own seeded generator."""
 
     def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0,
-                 with_night: bool = True) -> None:
+                 with_night: bool = True, night_styles: Sequence[str] = ("real",)) -> None:
         super().__init__()
         self.day_sources, self.cfg, self.seed, self.rank = day_sources, cfg, seed, rank
         self.with_night = with_night  # the baseline stage never looks at night data
         self.night_source = NightFolderSource(night) if night and with_night else None
+        self.night_styles = tuple(night_styles)
 
-    def _night(self, frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def _night_style(self, rng: np.random.Generator) -> str:
+        """One style per pair (one camera films both frames); no draw with a single style, so a stream
+        rendered in one style is the same as before styles could be mixed."""
+        if len(self.night_styles) == 1:
+            return self.night_styles[0]
+        return self.night_styles[int(rng.integers(len(self.night_styles)))]
+
+    @staticmethod
+    def _night(frame: np.ndarray, rng: np.random.Generator, style: str) -> np.ndarray:
         from dadiff.runtime.evaluation.night import render_night
 
-        return render_night(frame, rng)
+        return render_night(frame, rng, style=style)
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         info = get_worker_info()
@@ -282,7 +291,8 @@ class PairStream(IterableDataset):
             if not self.with_night:
                 zn, xn = z[:1, :1], x[:1, :1]  # placeholders, unused
             elif self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
-                zn, xn = wz.cut(self._night(fz, rng)), wx.cut(self._night(fx, rng))
+                style = self._night_style(rng)
+                zn, xn = wz.cut(self._night(fz, rng, style)), wx.cut(self._night(fx, rng, style))
             else:
                 zn = self._crop_night(self.night_source.sample(rng), cfg.exemplar, rng)
                 xn = self._crop_night(self.night_source.sample(rng), cfg.instance, rng)

@@ -192,3 +192,13 @@ night = "{image_folder}"
     line = next(ln for ln in result.stdout.splitlines() if "replicas" in ln)
     assert "2 replicas" in line and float(line.rsplit(" ", 1)[1]) == 0.0
     assert np.isfinite(float(line.rsplit(" ", 1)[1]))
+
+
+def test_night_styles_are_checked_before_training(tmp_path, capsys):
+    config = tmp_path / "bad.toml"
+    config.write_text('[train]\nnight_styles = ["real", "dusk"]\n')
+    from dadiff.export.train import main
+
+    assert main(["--config", str(config)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("'night_styles' has 'dusk'; expected items from classic, real")

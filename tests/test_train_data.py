@@ -34,3 +34,25 @@ def test_scene_pairs_with_rendered_night_are_paired():
     sample = next(stream)
     assert bool(sample["paired"]) and sample["x_night"].shape == (3, 255, 255)
     assert float(sample["x_night"].mean()) < float(sample["x"].mean())  # night is darker
+
+
+def test_night_styles_mix_per_pair(monkeypatch):
+    seen = []
+
+    def fake_night(frame, rng, style):
+        seen.append(style)
+        return frame // 4
+
+    one = iter(PairStream([SceneSource("train")], None, CropConfig(), seed=3))
+    monkeypatch.setattr(PairStream, "_night", staticmethod(fake_night))
+    mixed = PairStream([SceneSource("train")], None, CropConfig(), seed=3, night_styles=("real", "classic"))
+    pairs = iter(mixed)
+    for _ in range(12):
+        next(pairs)
+    assert set(seen) == {"real", "classic"}
+    assert all(a == b for a, b in zip(seen[::2], seen[1::2], strict=True))  # template and search: one camera
+    seen.clear()
+    monkeypatch.undo()
+    default_sample = next(one)
+    classic = next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=3, night_styles=("classic",))))
+    assert float(classic["x_night"].mean()) > float(default_sample["x_night"].mean())  # classic is brighter
