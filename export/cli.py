@@ -79,8 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1} (default {DEFAULT_OPSET})")
     p.add_argument("--family", choices=FAMILIES, help="require this model family (default: any)")
-    p.add_argument("--preset", choices=sorted(HP_PRESETS),
-                   help="hyper-parameter preset the runtime uses by default (default: the checkpoint's)")
+    p.add_argument("--preset", metavar="NAME",
+                   help="hyper-parameter preset the runtime uses by default, one of the checkpoint's "
+                        f"({', '.join(sorted(HP_PRESETS))}; dadiff-mobile also GEN_NIGHT; default: the checkpoint's)")
     p.add_argument("--tolerance", type=_tolerance, default=PARITY_TOLERANCE,
                    help=f"max-abs torch/onnxruntime difference allowed, >= 0 (default {PARITY_TOLERANCE:g})")
     _add_quantize_options(p)

@@ -349,12 +349,14 @@ def uses_night(cfg: TrainConfig) -> bool:
     return cfg.stage == "dadiff" or cfg.lambda_night_trc > 0
 
 
-def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int) -> DataLoader:
+def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0) -> DataLoader:
+    """The pair stream from `start_step` on: a resumed run continues with pairs it has not seen (the stream
+    is seeded by the step it starts at; step 0 is the stream of a run that was never interrupted)."""
     tr = net.cfg.tracker
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
                       score_size=tr.score_size, context=tr.context_amount)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
-                        with_night=uses_night(cfg), night_styles=cfg.night_styles)
+                        with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step)
     return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
                       persistent_workers=cfg.workers > 0)
 
@@ -381,7 +383,7 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
     trainer = Trainer(cfg, rank, world, pick_device(device, rank))
     deadline = time.monotonic() + 60 * max_minutes if max_minutes else math.inf
     resumed = trainer.resume()
-    loader = iter(data_loader(cfg, trainer.net, rank))
+    loader = iter(data_loader(cfg, trainer.net, rank, trainer.step))
     log_path = trainer.out / "log.csv"
     fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "distill", "feature", "night_cls",
               "night_loc", "sec_per_step"]

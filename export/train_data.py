@@ -252,9 +252,10 @@ class PairStream(IterableDataset):
     """Endless stream of samples; each worker / rank draws from its own seeded generator."""
 
     def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0,
-                 with_night: bool = True, night_styles: Sequence[str] = ("real",)) -> None:
+                 with_night: bool = True, night_styles: Sequence[str] = ("real",), start_step: int = 0) -> None:
         super().__init__()
         self.day_sources, self.cfg, self.seed, self.rank = day_sources, cfg, seed, rank
+        self.start_step = start_step  # a resumed run draws new pairs instead of replaying the first ones
         self.with_night = with_night  # the baseline stage never looks at night data
         self.night_source = NightFolderSource(night) if night and with_night else None
         self.night_styles = tuple(night_styles)
@@ -275,7 +276,8 @@ class PairStream(IterableDataset):
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         info = get_worker_info()
         worker = info.id if info else 0
-        rng = np.random.default_rng([self.seed, self.rank, worker])
+        entropy = [self.seed, self.rank, worker] + ([self.start_step] if self.start_step else [])
+        rng = np.random.default_rng(entropy)
         cfg = self.cfg
         while True:
             source = self.day_sources[int(rng.integers(len(self.day_sources)))]

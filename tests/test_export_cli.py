@@ -114,3 +114,9 @@ def test_preset_sets_the_runtime_default(tmp_path, capsys, lite_checkpoint):
     assert code == 0, err
     meta = ort.InferenceSession(str(tmp_path / "nat" / "search.onnx")).get_modelmeta().custom_metadata_map
     assert meta["default_preset"] == "NAT" and meta["lr"] == "0.45" and meta["penalty_k"] == "0.14"
+
+
+def test_unknown_preset_is_one_line(tmp_path, capsys, lite_checkpoint):
+    code, _, err = _run(capsys, str(lite_checkpoint), "-o", str(tmp_path / "x"), "--preset", "GEN_NIGHT")
+    assert code == 2 and "unknown preset 'GEN_NIGHT'; known: NAT, NAT_L, NUT_L, UAVDark70" in err
+    assert len(err.strip().splitlines()) == 1

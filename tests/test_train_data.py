@@ -56,3 +56,13 @@ def test_night_styles_mix_per_pair(monkeypatch):
     default_sample = next(one)
     classic = next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=3, night_styles=("classic",))))
     assert float(classic["x_night"].mean()) > float(default_sample["x_night"].mean())  # classic is brighter
+
+
+def test_a_resumed_stream_draws_new_pairs():
+    """Resuming at step k must not replay the pairs of steps 1..k (seeded generators would)."""
+    def first(start_step):
+        return next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=0, start_step=start_step)))
+
+    fresh, again, resumed = first(0), first(0), first(600)
+    assert np.array_equal(fresh["x"], again["x"])
+    assert not np.array_equal(fresh["x"], resumed["x"])
