@@ -25,6 +25,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("model", "{}", "model config overrides, e.g. {align = \"none\", ddim_steps = 4}"),
     ("day", '[{kind = "scenes", split = "train"}]', "day data: kind scenes, got10k, otb, sequences or images"),
     ("night", "(rendered)", "folder of night images or videos; default: the day frames rendered at night"),
+    ("night_styles", '["real"]', "night renderer styles, one drawn per pair: real, classic"),
     ("steps", "1000", "training steps (>= 1)"),
     ("batch_size", "16", "pairs per step and process (>= 2)"),
     ("workers", "0", "data loader processes"),
