@@ -354,7 +354,6 @@ def _pack(cache: Path, args: argparse.Namespace) -> int:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    from ..onnx_backend import OnnxBackend
     from ..tracker import Tracker
     from .tune import (
         DEFAULT_GRID,
@@ -368,14 +367,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
     grid = parse_grid(args.grid) or DEFAULT_GRID
     sequences = [s for path in args.dataset for s in load_sequences(load_dataset(path).select(args.sequences))]
-    try:
-        from dadiff.models import ModelNotFoundError, resolve
-
-        backend = OnnxBackend(resolve(args.model), threads=args.threads)
-    except ModelNotFoundError as exc:
-        raise ModelError(str(exc)) from None
-    start_params = Tracker(backend, preset=args.preset).params
-    start = {k: getattr(start_params, k) for k in grid}
+    first_tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads)
+    backend = first_tracker.backend  # one onnxruntime session for every trial
+    start = {k: getattr(first_tracker.params, k) for k in grid}
 
     def show(trial) -> None:
         values = ", ".join(f"{k}={v:g}" for k, v in trial.values.items())

@@ -217,14 +217,14 @@ class RunReport:
         return self.frames / self.seconds if self.seconds > 0 else None
 
 
-def _read_frame(path: Path) -> np.ndarray:
+def read_frame(path: Path) -> np.ndarray:
     image = read_image(path)  # libjpeg's own warnings on a damaged frame stay off stderr
     if image is None:
         raise EvalError(f"{path}: cannot read image")
     return image
 
 
-def _check_first_box(name: str, box: np.ndarray) -> None:
+def check_first_box(name: str, box: np.ndarray) -> None:
     if not (np.all(np.isfinite(box)) and box[2] > 0 and box[3] > 0):
         raise EvalError(f"sequence {name}: first ground-truth box {box.tolist()} is invalid; cannot initialise")
 
@@ -245,7 +245,7 @@ def run_tracker(
         if _complete(folder / f"{seq.name}.txt", len(seq)):
             report.skipped.append(seq.name)
         else:
-            _check_first_box(seq.name, seq.boxes[0])
+            check_first_box(seq.name, seq.boxes[0])
             todo.append(seq)
     bar = tqdm(
         total=sum(len(s) for s in todo),
@@ -258,12 +258,12 @@ def run_tracker(
     with bar:
         for seq in todo:
             bar.set_postfix_str(seq.name)
-            frame = _read_frame(seq.frames[0])
+            frame = read_frame(seq.frames[0])
             tracker.init(frame, tuple(seq.boxes[0]))
             boxes: list[Sequence[float]] = [protocol_box(seq.boxes[0])]
             bar.update(1)
             for path in seq.frames[1:]:
-                frame = _read_frame(path)
+                frame = read_frame(path)
                 start = time.perf_counter()
                 box, _, _ = tracker.update(frame)
                 report.seconds += time.perf_counter() - start

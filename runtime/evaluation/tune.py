@@ -18,7 +18,7 @@ import numpy as np
 from ..config import TUNABLE_KEYS
 from ..errors import InputError
 from .datasets import Dataset
-from .evaluate import EvalError, _read_frame, protocol_box
+from .evaluate import check_first_box, protocol_box, read_frame
 from .metrics import Scores, SequenceCurves, summarise
 
 # what a search varies when the user names no grid: the released keys around their usual ranges
@@ -70,10 +70,8 @@ def load_sequences(dataset: Dataset) -> list[LoadedSequence]:
     """Decode every frame of `dataset` once (about 0.7 MB a 640x360 frame)."""
     loaded = []
     for seq in dataset.sequences:
-        box = seq.boxes[0]
-        if not (np.all(np.isfinite(box)) and box[2] > 0 and box[3] > 0):
-            raise EvalError(f"sequence {seq.name}: first ground-truth box {box.tolist()} is invalid")
-        loaded.append(LoadedSequence(seq.name, [_read_frame(p) for p in seq.frames], seq.boxes))
+        check_first_box(seq.name, seq.boxes[0])
+        loaded.append(LoadedSequence(seq.name, [read_frame(p) for p in seq.frames], seq.boxes))
     return loaded
 
 
