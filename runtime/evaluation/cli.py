@@ -366,8 +366,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     )
 
     grid = parse_grid(args.grid) or DEFAULT_GRID
+    first_tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads)  # before minutes of decoding
     sequences = [s for path in args.dataset for s in load_sequences(load_dataset(path).select(args.sequences))]
-    first_tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads)
     backend = first_tracker.backend  # one onnxruntime session for every trial
     start = {k: getattr(first_tracker.params, k) for k in grid}
 
