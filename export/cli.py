@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--family", choices=FAMILIES, help="require this model family (default: any)")
     p.add_argument("--preset", metavar="NAME",
                    help="hyper-parameter preset the runtime uses by default, one of the checkpoint's "
-                        f"({', '.join(sorted(HP_PRESETS))}; dadiff-mobile also GEN_NIGHT; default: the checkpoint's)")
+                        f"(the released ones: {', '.join(sorted(HP_PRESETS))}; default: the checkpoint's)")
     p.add_argument("--tolerance", type=_tolerance, default=PARITY_TOLERANCE,
                    help=f"max-abs torch/onnxruntime difference allowed, >= 0 (default {PARITY_TOLERANCE:g})")
     _add_quantize_options(p)

@@ -376,7 +376,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         print(f"{values}: success {trial.scores.success:.3f}, precision {trial.scores.precision:.3f}", flush=True)
 
     def evaluate(values: dict[str, float]):
-        return track_sequences(Tracker(backend, preset=args.preset, overrides=values), sequences)
+        return track_sequences(RuntimeTracker(Tracker(backend, preset=args.preset, overrides=values)), sequences)
 
     print(f"tuning {', '.join(grid)} on {len(sequences)} sequences ({sum(len(s.frames) for s in sequences)} frames)")
     trials = coordinate_search(evaluate, start, grid, args.rounds, show)

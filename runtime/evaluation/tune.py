@@ -18,7 +18,7 @@ import numpy as np
 from ..config import TUNABLE_KEYS
 from ..errors import InputError
 from .datasets import Dataset
-from .evaluate import check_first_box, protocol_box, read_frame
+from .evaluate import BoxTracker, check_first_box, protocol_box, read_frame
 from .metrics import Scores, SequenceCurves, summarise
 
 # what a search varies when the user names no grid: the released keys around their usual ranges
@@ -75,13 +75,13 @@ def load_sequences(dataset: Dataset) -> list[LoadedSequence]:
     return loaded
 
 
-def track_sequences(tracker: object, sequences: Sequence[LoadedSequence]) -> Scores:
-    """One-pass evaluation of a `dadiff.runtime.Tracker` (protocol init box, as `dadiff-eval run`)."""
+def track_sequences(tracker: BoxTracker, sequences: Sequence[LoadedSequence]) -> Scores:
+    """One-pass evaluation as `dadiff-eval run` does it (e.g. a `RuntimeTracker`: the protocol init box)."""
     curves = []
     for seq in sequences:
-        tracker.init(seq.frames[0], protocol_box(seq.boxes[0]))
+        tracker.init(seq.frames[0], tuple(seq.boxes[0]))
         boxes = [protocol_box(seq.boxes[0])]
-        boxes += [tuple(tracker.update(frame).box) for frame in seq.frames[1:]]
+        boxes += [tracker.update(frame)[0] for frame in seq.frames[1:]]
         curves.append(SequenceCurves.from_boxes(seq.boxes, np.asarray(boxes, dtype=np.float64)))
     return summarise(curves)
 
