@@ -27,7 +27,15 @@ from torch.utils.data import DataLoader
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint
 from .config import ModelConfig, default_config, is_lite0
 from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
-from .losses import align_loss, ban_cls_loss, ban_iou_loss, distill_cls_loss, distill_loc_loss, feature_distill_loss
+from .losses import (
+    align_loss,
+    ban_cls_loss,
+    ban_iou_loss,
+    chain_align_loss,
+    distill_cls_loss,
+    distill_loc_loss,
+    feature_distill_loss,
+)
 from .network import DaDiffNet, build_model
 from .train_check import check_train_values
 from .train_cli import build_parser, finish_line
@@ -61,6 +69,7 @@ class TrainConfig:
     lambda_align: float = 1.0
     adversarial: bool = True              # ablation switches (Table IV)
     align_loss: bool = True
+    align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output
     grad_clip: float = 10.0
     checkpoint_every: int = 100
     seed: int = 0
@@ -97,6 +106,9 @@ class TrainConfig:
         cfg = cls(**flat)
         if cfg.stage not in ("baseline", "dadiff"):
             raise ValueError(f"{path}: stage must be 'baseline' or 'dadiff', got {cfg.stage!r}")
+        if cfg.align_target == "chain" and cfg.night is not None:
+            raise ValueError(f"{path}: align_target 'chain' needs night rendered from the day frames (paired); "
+                             f"drop 'night' or use align_target 'eps'")
         if cfg.batch_size < 2:  # BatchNorm layers (head, channel weights) need 2+ samples per process
             raise ValueError(f"{path}: batch_size must be at least 2 per process, got {cfg.batch_size}")
         return cfg
@@ -185,7 +197,7 @@ class Trainer:
         if self.adapter is not None:
             self.opt.add_param_group({"params": list(self.adapter.parameters()), "lr_mult": 1.0})
         self.step = 0
-        forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device)
+        forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device, cfg.align_target)
         self.model = DistributedDataParallel(forward, find_unused_parameters=True) if world > 1 else forward
         self.dmodel = (DistributedDataParallel(self.disc) if world > 1 else self.disc) if self.disc else None
 
@@ -313,10 +325,12 @@ class Trainer:
 class TrainForward(nn.Module):
     """The tracker's side of one step in a single forward, so that DistributedDataParallel can wrap it."""
 
-    def __init__(self, net: DaDiffNet, seed: int, device: torch.device | str = "cpu") -> None:
+    def __init__(self, net: DaDiffNet, seed: int, device: torch.device | str = "cpu",
+                 align_target: str = "eps") -> None:
         super().__init__()
         self.net = net
         self.gen = torch.Generator(device=device).manual_seed(seed)
+        self.align_target = align_target
 
     def forward(self, z: torch.Tensor, x: torch.Tensor, label: torch.Tensor, loc_target: torch.Tensor, paired: bool,
                 z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
@@ -335,7 +349,13 @@ class TrainForward(nn.Module):
         if paired:  # rendered from the day frames: the day boxes hold
             cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))
             out["night_cls"], out["night_loc"] = ban_cls_loss(cls_n, label), ban_iou_loss(loc_n, loc_target, label)
-        if net.cfg.use_dadiff:
+        if net.cfg.use_dadiff and self.align_target == "chain" and paired:
+            # L_align on the inference chain itself: the sampler's output from the night features should be
+            # what it gives for the same frame by day (detached), so the head sees day-like features at night
+            losses = [chain_align_loss(n[-1], d[-1])
+                      for db, nb in ((zb, zn), (xb, xn)) for d, n in zip(db.states, nb.states, strict=True)]
+            out["align"] = torch.stack(losses).mean()
+        elif net.cfg.use_dadiff:
             # L_align: recover day features from noise, conditioned on the night features of the same content
             # (night rendered from day), or on the day features themselves when the night data is unpaired
             losses = [align_loss(net.diffusion, net.sampler.alpha_bar, d.detach(), n if paired else d, self.gen)

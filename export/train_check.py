@@ -24,7 +24,7 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
 }
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
-                                       "optimizer": ("sgd", "adamw")}
+                                       "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain")}
 ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings
 
 

@@ -42,6 +42,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("lambda_align", "1.0", "alignment loss weight"),
     ("adversarial", "true", "ablation switch: the adversarial loss"),
     ("align_loss", "true", "ablation switch: the alignment loss"),
+    ("align_target", '"eps"', '"eps" (paper eq. 6) or "chain": sampler output on night vs on the paired day frame'),
     ("grad_clip", "10.0", "gradient norm clip (> 0)"),
     ("checkpoint_every", "100", "steps between last.pt saves (>= 1)"),
     ("seed", "0", "random seed"),

@@ -202,3 +202,42 @@ def test_night_styles_are_checked_before_training(tmp_path, capsys):
     assert main(["--config", str(config)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.endswith("'night_styles' has 'dusk'; expected items from classic, real")
+
+
+def test_chain_alignment_pulls_night_outputs_towards_the_paired_day_outputs(tmp_path, image_folder):
+    """align_target = "chain": the loss is the sampler's night output against its detached day output, it goes
+    down with training, and the day branch gets no gradient from it (the day output is the target)."""
+    from dadiff.export.losses import chain_align_loss
+
+    cfg = config(tmp_path, image_folder, night=None, adversarial=False, lambda_trc=0.0, align_target="chain")
+    trainer = Trainer(cfg)
+    for m in trainer.net.modules():
+        if isinstance(m, torch.nn.Dropout):
+            m.p = 0.0
+    batch = next(iter(data_loader(cfg, trainer.net, 0)))
+    trainer.train_mode()
+    out = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"], True, batch["z_night"],
+                        batch["x_night"])
+    day_x = trainer.net.search_branch(batch["x"]).states[0][-1]
+    assert out["align"].item() > 0.0
+    assert chain_align_loss(day_x, day_x).item() == 0.0
+    night_leaf, day_leaf = torch.randn(2, 4, 3, 3, requires_grad=True), torch.randn(2, 4, 3, 3, requires_grad=True)
+    g_night, g_day = torch.autograd.grad(chain_align_loss(night_leaf, day_leaf), [night_leaf, day_leaf],
+                                         allow_unused=True)
+    assert g_day is None and g_night.abs().sum() > 0
+    first = trainer.step_on(batch)["align"]
+    for _ in range(5):
+        last = trainer.step_on(batch)["align"]
+    assert last < first
+
+
+def test_chain_alignment_needs_paired_night(tmp_path, capsys):
+    from dadiff.export.train import main
+
+    bad = tmp_path / "chain.toml"
+    bad.write_text(f'[train]\nalign_target = "chain"\nnight = "{tmp_path}"\n')
+    assert main(["--config", str(bad)]) == 2
+    assert "align_target 'chain' needs night rendered from the day frames" in capsys.readouterr().err
+    bad.write_text('[train]\nalign_target = "x0"\n')
+    assert main(["--config", str(bad)]) == 2
+    assert "'align_target' is 'x0'; expected one of eps, chain" in capsys.readouterr().err
