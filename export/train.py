@@ -77,6 +77,7 @@ class TrainConfig:
     lambda_distill: float = 1.0           # teacher cls + loc responses (stride-16 families)
     lambda_feature: float = 0.5           # teacher search features through a training-only 1x1 adapter
     lambda_night_trc: float = 0.0         # L_trc on the rendered night pairs too (their boxes are the day boxes)
+    lambda_night_distill: float = 0.0     # the teacher's responses on the day crops as targets on the night pairs
     night_styles: list[str] = field(default_factory=lambda: ["real"])  # rendered night: one style per pair
 
     @classmethod
@@ -109,6 +110,9 @@ class TrainConfig:
         if cfg.align_target == "chain" and cfg.night is not None:
             raise ValueError(f"{path}: align_target 'chain' needs night rendered from the day frames (paired); "
                              f"drop 'night' or use align_target 'eps'")
+        if cfg.lambda_night_distill and (cfg.teacher is None or cfg.night is not None):
+            raise ValueError(f"{path}: lambda_night_distill needs a teacher and night rendered from the day frames "
+                             f"(paired); set 'teacher' and drop 'night'")
         if cfg.batch_size < 2:  # BatchNorm layers (head, channel weights) need 2+ samples per process
             raise ValueError(f"{path}: batch_size must be at least 2 per process, got {cfg.batch_size}")
         return cfg
@@ -286,6 +290,12 @@ class Trainer:
             t_feat, t_prob, t_loc = (t.to(self.device) for t in self.teacher(cpu_batch["z"], cpu_batch["x"],
                                                                               cls.shape[-1]))
             l_distill = distill_cls_loss(cls, t_prob) + distill_loc_loss(loc, t_loc, t_prob)
+            if cfg.lambda_night_distill and out["night_cls_map"] is not None:
+                # the teacher sees the day crop, the student the same crop rendered at night
+                l_night_kd = distill_cls_loss(out["night_cls_map"], t_prob) + \
+                    distill_loc_loss(out["night_loc_map"], t_loc, t_prob)
+                total = total + cfg.lambda_night_distill * l_night_kd
+                logs["night_distill"] = l_night_kd.item()
             l_feature = feature_distill_loss(self.adapter(out["x_neck"]), t_feat)
             total = total + cfg.lambda_distill * l_distill + cfg.lambda_feature * l_feature
             logs |= {"distill": l_distill.item(), "feature": l_feature.item()}
@@ -341,7 +351,8 @@ class TrainForward(nn.Module):
         out = {"cls": ban_cls_loss(cls, label), "loc": ban_iou_loss(loc, loc_target, label), "align": zero,
                "night_cls": zero, "night_loc": zero, "night_states": [],
                "day_states": [s for b in (zb, xb) for level in b.states for s in level],
-               "cls_map": cls, "loc_map": loc, "x_neck": xb.neck[0]}  # the maps and neck: the teacher's losses
+               "cls_map": cls, "loc_map": loc, "x_neck": xb.neck[0],  # the maps and neck: the teacher's losses
+               "night_cls_map": None, "night_loc_map": None}
         if z_night is None:
             return out
         zn, xn = net.template_branch(z_night), net.search_branch(x_night)
@@ -349,6 +360,7 @@ class TrainForward(nn.Module):
         if paired:  # rendered from the day frames: the day boxes hold
             cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))
             out["night_cls"], out["night_loc"] = ban_cls_loss(cls_n, label), ban_iou_loss(loc_n, loc_target, label)
+            out["night_cls_map"], out["night_loc_map"] = cls_n, loc_n
         if net.cfg.use_dadiff and self.align_target == "chain" and paired:
             # L_align on the inference chain itself: the sampler's output from the night features should be
             # what it gives for the same frame by day (detached), so the head sees day-like features at night
@@ -366,7 +378,7 @@ class TrainForward(nn.Module):
 
 def uses_night(cfg: TrainConfig) -> bool:
     """Night crops are made for the DaDiff stage, and for any stage that tracks on them."""
-    return cfg.stage == "dadiff" or cfg.lambda_night_trc > 0
+    return cfg.stage == "dadiff" or cfg.lambda_night_trc > 0 or cfg.lambda_night_distill > 0
 
 
 def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0) -> DataLoader:
@@ -406,10 +418,13 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
     loader = iter(data_loader(cfg, trainer.net, rank, trainer.step))
     log_path = trainer.out / "log.csv"
     fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "distill", "feature", "night_cls",
-              "night_loc", "sec_per_step"]
+              "night_loc", "sec_per_step", "night_distill"]
     if rank == 0:
         trainer.out.mkdir(parents=True, exist_ok=True)
         new_log = not log_path.exists() or not resumed
+        if not new_log:  # a log from before a column was added keeps its own header
+            with open(log_path, newline="") as f:
+                fields = next(csv.reader(f), None) or fields
         log_file = open(log_path, "w" if new_log else "a", newline="")
         writer = csv.DictWriter(log_file, fieldnames=fields, extrasaction="ignore")
         if new_log:

@@ -22,6 +22,7 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "backbone_lr_mult": (0, True), "weight_decay": (0, True), "disc_lr": (0, False), "disc_poly_power": (0, True),
     "lambda_trc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True), "grad_clip": (0, False),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
+    "lambda_night_distill": (0, True),
 }
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain")}

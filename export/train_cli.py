@@ -49,6 +49,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("teacher", "(none)", "NanoTrack v3 ONNX folder to distil from (stride-16 families)"),
     ("lambda_distill", "1.0", "teacher response distillation weight"),
     ("lambda_feature", "0.5", "teacher search-feature distillation weight"),
+    ("lambda_night_distill", "0.0", "the teacher's day-crop responses as targets on the rendered night crops"),
     ("lambda_night_trc", "0.0", "tracking loss on the rendered night pairs too (their boxes are the day boxes)"),
 )
 

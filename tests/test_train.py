@@ -241,3 +241,26 @@ def test_chain_alignment_needs_paired_night(tmp_path, capsys):
     bad.write_text('[train]\nalign_target = "x0"\n')
     assert main(["--config", str(bad)]) == 2
     assert "'align_target' is 'x0'; expected one of eps, chain" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not TEACHER.is_dir(), reason="NanoTrack v3 teacher weights are not at ../shared/weights")
+def test_night_distillation_uses_the_teachers_day_responses_on_the_night_pairs(tmp_path, image_folder):
+    """lambda_night_distill: the teacher's responses on the day crops are targets for the night crops' maps."""
+    cfg = config(tmp_path, image_folder, stage="baseline", family="dadiff-mobile", night=None, teacher=str(TEACHER),
+                 freeze_backbone_blocks=2, lambda_night_trc=1.0, lambda_night_distill=1.0)
+    trainer = Trainer(cfg)
+    batch = next(iter(data_loader(cfg, trainer.net, 0)))
+    first = trainer.step_on(batch)
+    for _ in range(4):
+        last = trainer.step_on(batch)
+    assert last["night_distill"] < first["night_distill"]
+    assert "night_distill" not in Trainer(replace(cfg, lambda_night_distill=0.0)).step_on(batch)
+
+
+def test_night_distillation_needs_a_teacher(tmp_path, capsys):
+    from dadiff.export.train import main
+
+    bad = tmp_path / "kd.toml"
+    bad.write_text("[train]\nlambda_night_distill = 1.0\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "lambda_night_distill needs a teacher" in capsys.readouterr().err
