@@ -130,6 +130,25 @@ def test_missing_contrib_is_a_clear_error(monkeypatch):
         OpenCVTracker("csrt")
 
 
+def test_an_opencv_tracker_that_raises_is_a_failed_update(monkeypatch):
+    """OpenCV's CSRT asserts inside resize on some sequences; that frame is a failure, not a crashed run."""
+    import cv2
+
+    class Asserts:
+        def init(self, frame, rect):
+            pass
+
+        def update(self, frame):
+            raise cv2.error("resize: !ssize.empty()")
+
+    monkeypatch.setattr(cv2, "TrackerCSRT", type("TrackerCSRT", (), {"create": staticmethod(Asserts)}),
+                        raising=False)
+    tracker = OpenCVTracker("csrt")
+    frame = np.zeros((64, 64, 3), np.uint8)
+    tracker.init(frame, (10.0, 12.0, 8.0, 6.0))
+    assert tracker.update(frame) == ((10.0, 12.0, 8.0, 6.0), 0.0, "lost")
+
+
 def test_nano_baseline(bench, tmp_path, capsys):
     if not nano_available():
         pytest.skip(f"NanoTrack v2 weights not found in {DEFAULT_NANO_DIR} (or cv2.TrackerNano missing)")

@@ -122,8 +122,8 @@ def _nano_factory(folder: Path | None) -> Callable[[], object]:
 class OpenCVTracker:
     """OpenCV's CSRT, KCF (opencv-contrib) or TrackerNano (NanoTrack v2 weights, `nano_dir`).
 
-    The score is the tracker's own where it has one (TrackerNano), else 1; a failed update keeps the last
-    box and reports 'lost'.
+    The score is the tracker's own where it has one (TrackerNano), else 1; a failed update (or one that raises
+    cv2.error, as CSRT does on some sequences) keeps the last box and reports 'lost'.
     """
 
     def __init__(self, kind: str, *, nano_dir: Path | None = None) -> None:
@@ -150,7 +150,10 @@ class OpenCVTracker:
         self._last = (x, y, w, h)
 
     def update(self, frame: np.ndarray) -> tuple[Box, float, str]:
-        ok, rect = self._tracker.update(frame)
+        try:
+            ok, rect = self._tracker.update(frame)
+        except cv2.error:  # CSRT asserts inside resize once its box has shrunk to nothing: a failed update
+            ok, rect = False, (0, 0, 0, 0)
         if ok and rect[2] > 0 and rect[3] > 0:
             self._last = tuple(float(v) for v in rect)
             return self._last, self._score(), "tracking"
