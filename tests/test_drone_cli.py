@@ -224,8 +224,13 @@ def test_rehearse_a_recorded_flight_with_a_ground_station(media: dict[str, Path]
         runner.start()
         beat = gcs.wait_for("HEARTBEAT", 10, where=lambda m: m.get_srcComponent() == 100)
         assert beat is not None and beat.get_srcSystem() == 1
-        assert wait_until(lambda: bool(gcs.received("CAMERA_TRACKING_IMAGE_STATUS")), 5)  # frames flow
-        reply = gcs.call(mavlink.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0.3, 0.3, 0.5, 0.5, target=(1, 100))
+        assert wait_until(lambda: bool(gcs.received("CAMERA_TRACKING_IMAGE_STATUS")), 5)  # the camera is up
+        deadline = time.monotonic() + 5
+        while True:  # before its first frame the camera answers TEMPORARILY_REJECTED: a ground station retries
+            reply = gcs.call(mavlink.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0.3, 0.3, 0.5, 0.5, target=(1, 100))
+            if reply is None or reply.result != mavlink.MAV_RESULT_TEMPORARILY_REJECTED or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
         assert reply is not None and reply.result == mavlink.MAV_RESULT_ACCEPTED
         active = gcs.wait_for("CAMERA_TRACKING_IMAGE_STATUS", 3, where=lambda m: m.tracking_status == 1)
         assert active is not None
