@@ -33,6 +33,13 @@ def config(tmp_path: Path, image_folder: Path, **kw) -> TrainConfig:
     return replace(base, **kw)
 
 
+def without_dropout(trainer: Trainer) -> None:
+    """A fixed function of the weights, so that "the loss went down" is well defined."""
+    for m in trainer.net.modules():
+        if isinstance(m, torch.nn.Dropout):
+            m.p = 0.0
+
+
 def losses_on(trainer: Trainer, batch) -> dict[str, float]:
     trainer.train_mode()
     with torch.no_grad():
@@ -46,9 +53,7 @@ def losses_on(trainer: Trainer, batch) -> dict[str, float]:
 def test_steps_decrease_each_loss_and_reach_the_denoiser(tmp_path, image_folder):
     cfg = config(tmp_path, image_folder, disc_lr=0.0)  # D held fixed, so its judgement is a fixed yardstick
     trainer = Trainer(cfg)
-    for m in trainer.net.modules():  # a fixed function of the weights, so "decrease" is well defined
-        if isinstance(m, torch.nn.Dropout):
-            m.p = 0.0
+    without_dropout(trainer)
     batch = next(iter(data_loader(cfg, trainer.net, 0)))
     before = losses_on(trainer, batch)
     denoiser_w = trainer.net.diffusion.conv_in.weight.detach().clone()
@@ -143,9 +148,7 @@ def test_night_tracking_loss_on_rendered_night_pairs(tmp_path, image_folder):
     baseline stage as well, and their loss goes down; without it they stay out of the total."""
     cfg = config(tmp_path, image_folder, stage="baseline", night=None, lambda_night_trc=1.0)
     trainer = Trainer(cfg)
-    for m in trainer.net.modules():
-        if isinstance(m, torch.nn.Dropout):
-            m.p = 0.0
+    without_dropout(trainer)
     batch = next(iter(data_loader(cfg, trainer.net, 0)))
     assert bool(batch["paired"].all()) and batch["x_night"].shape == batch["x"].shape
     first = trainer.step_on(batch)
@@ -211,16 +214,14 @@ def test_chain_alignment_pulls_night_outputs_towards_the_paired_day_outputs(tmp_
 
     cfg = config(tmp_path, image_folder, night=None, adversarial=False, lambda_trc=0.0, align_target="chain")
     trainer = Trainer(cfg)
-    for m in trainer.net.modules():
-        if isinstance(m, torch.nn.Dropout):
-            m.p = 0.0
+    without_dropout(trainer)
     batch = next(iter(data_loader(cfg, trainer.net, 0)))
     trainer.train_mode()
     out = trainer.model(batch["z"], batch["x"], batch["label"], batch["loc"], True, batch["z_night"],
                         batch["x_night"])
-    day_x = trainer.net.search_branch(batch["x"]).states[0][-1]
+    day_out = out["day_states"][-1]  # the search branch's chain output
     assert out["align"].item() > 0.0
-    assert chain_align_loss(day_x, day_x).item() == 0.0
+    assert chain_align_loss(day_out, day_out).item() == 0.0
     night_leaf, day_leaf = torch.randn(2, 4, 3, 3, requires_grad=True), torch.randn(2, 4, 3, 3, requires_grad=True)
     g_night, g_day = torch.autograd.grad(chain_align_loss(night_leaf, day_leaf), [night_leaf, day_leaf],
                                          allow_unused=True)
