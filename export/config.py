@@ -60,6 +60,7 @@ class ModelConfig:
     ddim_start_t: int | None = 1       # noise level of the start state; None = the first visited timestep
     align: str = "released"            # "released" (LN(x + pos)) | "paper" (eq. 7) | "none" (ablation)
     use_dadiff: bool = True            # False: the baseline tracker, neck features go straight to the head
+    align_residual: bool = False       # True: the head gets N_f + s * TL(X_0), s per channel from 0 (ours)
     align_heads: int = 8
     align_ffn: int = 2048
     head_search_padding: int = 0       # padding of the head's search-side 3x3 convs (keeps a small map's size)
@@ -160,7 +161,7 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'ddim_start_t' is {cfg.ddim_start_t!r}; expected an integer >= 0 or none")
     if cfg.align not in ALIGNS:
         raise ValueError(f"'align' is {cfg.align!r}; expected one of {', '.join(ALIGNS)}")
-    for name in ("use_dadiff", "denoiser_attention"):
+    for name in ("use_dadiff", "align_residual", "denoiser_attention"):
         if not isinstance(getattr(cfg, name), bool):
             raise ValueError(f"'{name}' is {getattr(cfg, name)!r}; expected true or false")
     levels = (cfg.level_names, cfg.backbone_channels)

@@ -65,6 +65,8 @@ class DaDiffNet(nn.Module):
                 self.align_track = nn.Identity()
             else:
                 raise ValueError(f"unknown alignment layer {cfg.align!r}")
+        if cfg.align_residual:  # LayerScale-style gate: the block starts as the identity of the tracker it joins
+            self.align_scale = nn.Parameter(torch.zeros(1, c, 1, 1))
         self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden, cfg.head_search_padding)
 
     def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
@@ -88,6 +90,8 @@ class DaDiffNet(nn.Module):
             return BranchOutput(neck, [[f] for f in neck], neck)
         states = self.diffuse(neck, noise)
         aligned = [self.align_track(s[-1]) for s in states]
+        if self.cfg.align_residual:
+            aligned = [n + self.align_scale * a for n, a in zip(neck, aligned, strict=True)]
         return BranchOutput(neck, states, aligned)
 
     def template_branch(self, z: torch.Tensor) -> BranchOutput:

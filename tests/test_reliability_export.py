@@ -110,6 +110,7 @@ BAD_TRAIN = [
     ('day = "scenes"', "'day' is 'scenes'; expected a list of tables"),
     ("model = {foo = 1}", "'model' has unknown keys foo"),
     ("model = {channels = -1}", "'model': 'channels' is -1"),
+    ("model = {align_residual = 1}", "'model': 'align_residual' is 1; expected true or false"),
     ("checkpoint_every = 0", "'checkpoint_every' is 0; expected >= 1"),
     ("steps = 0", "'steps' is 0; expected >= 1"),  # was: an untrained final.pt
     ("steps = -3", "'steps' is -3; expected >= 1"),

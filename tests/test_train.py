@@ -265,3 +265,24 @@ def test_night_distillation_needs_a_teacher(tmp_path, capsys):
     bad.write_text("[train]\nlambda_night_distill = 1.0\n")
     assert main(["--config", str(bad)]) == 2
     assert "lambda_night_distill needs a teacher" in capsys.readouterr().err
+
+
+def test_residual_dadiff_block_joins_a_trained_tracker_as_its_identity_and_then_trains(tmp_path, image_folder):
+    from dadiff.export.checkpoint import load_checkpoint
+    from dadiff.export.onnx_export import export_model
+
+    base_cfg = config(tmp_path / "base", image_folder, stage="baseline", steps=1)
+    run(base_cfg, progress=False)
+    start = Path(base_cfg.out) / "final.pt"
+    cfg = config(tmp_path, image_folder, init=str(start), model={"align_residual": True}, steps=2, adversarial=False)
+    joined = Trainer(cfg).net.eval()
+    base = load_checkpoint(start).model.eval()
+    gen = torch.Generator().manual_seed(0)
+    z, x = torch.rand(2, 3, 127, 127, generator=gen) * 255, torch.rand(2, 3, 255, 255, generator=gen) * 255
+    with torch.no_grad():
+        for ours, theirs in zip(joined(z, x), base(z, x), strict=True):
+            assert torch.equal(ours, theirs)  # the gate starts at 0: exactly the tracker it joins
+    trained = run(cfg, progress=False).net
+    assert trained.align_scale.abs().max().item() > 0  # the tracking losses open the gate
+    report = export_model(load_checkpoint(Path(cfg.out) / "final.pt"), tmp_path / "model", "residual")
+    assert report.max_parity <= 1e-4
