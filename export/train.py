@@ -42,6 +42,7 @@ from .train_cli import build_parser, finish_line
 from .train_data import CropConfig, PairStream, make_day_source
 
 DAY, NIGHT = 0.0, 1.0
+DADIFF_BLOCK = ("diffusion.", "align_track.", "align_scale")  # parameter names of the DaDiff block
 
 
 @dataclass
@@ -59,6 +60,7 @@ class TrainConfig:
     optimizer: str = "sgd"                # "sgd" (release) | "adamw"
     lr: float = 0.0015                    # DaDiff base lr (paper)
     backbone_lr_mult: float = 0.1
+    dadiff_lr_mult: float = 1.0           # the DaDiff block's factor (denoiser, tracking-oriented layer, gate)
     warmup_steps: int = 50
     weight_decay: float = 1e-4
     freeze_backbone_blocks: int = 5       # EfficientNet-Lite0 blocks 0..N-1 stay ImageNet
@@ -158,9 +160,17 @@ def freeze_early_blocks(net: DaDiffNet, blocks: int) -> list[nn.Module]:
 
 
 def param_groups(net: DaDiffNet, cfg: TrainConfig) -> list[dict[str, Any]]:
+    """Backbone, the rest, and the DaDiff block as a third group only when its factor differs (so that the
+    optimiser states of earlier runs, with two groups, still resume)."""
     backbone = [p for p in net.backbone.parameters() if p.requires_grad]
-    rest = [p for n, p in net.named_parameters() if p.requires_grad and not n.startswith("backbone.")]
-    return [{"params": backbone, "lr_mult": cfg.backbone_lr_mult}, {"params": rest, "lr_mult": 1.0}]
+    own_block = cfg.dadiff_lr_mult != 1.0
+    skip = ("backbone.", *DADIFF_BLOCK) if own_block else ("backbone.",)
+    rest = [p for n, p in net.named_parameters() if p.requires_grad and not n.startswith(skip)]
+    groups = [{"params": backbone, "lr_mult": cfg.backbone_lr_mult}, {"params": rest, "lr_mult": 1.0}]
+    if own_block:
+        block = [p for n, p in net.named_parameters() if p.requires_grad and n.startswith(DADIFF_BLOCK)]
+        groups.append({"params": block, "lr_mult": cfg.dadiff_lr_mult})
+    return groups
 
 
 def make_optimizer(groups: list[dict[str, Any]], cfg: TrainConfig) -> torch.optim.Optimizer:

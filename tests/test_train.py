@@ -286,3 +286,19 @@ def test_residual_dadiff_block_joins_a_trained_tracker_as_its_identity_and_then_
     assert trained.align_scale.abs().max().item() > 0  # the tracking losses open the gate
     report = export_model(load_checkpoint(Path(cfg.out) / "final.pt"), tmp_path / "model", "residual")
     assert report.max_parity <= 1e-4
+
+
+def test_dadiff_lr_mult_gives_the_block_its_own_rate_and_keeps_two_groups_at_one(tmp_path, image_folder):
+    from dadiff.export.train import DADIFF_BLOCK, param_groups
+
+    plain = Trainer(config(tmp_path, image_folder, adversarial=False))
+    assert len(plain.opt.param_groups) == 2  # the layout of earlier runs' optimiser states, so they resume
+    fast = Trainer(config(tmp_path, image_folder, adversarial=False, dadiff_lr_mult=5.0))
+    fast.set_lr()
+    backbone, rest, block = fast.opt.param_groups
+    names = {id(p): n for n, p in fast.net.named_parameters()}
+    assert block["params"] and all(names[id(p)].startswith(DADIFF_BLOCK) for p in block["params"])
+    assert not any(names[id(p)].startswith(DADIFF_BLOCK) for p in rest["params"])
+    assert block["lr"] == pytest.approx(5.0 * rest["lr"])
+    every = [p for g in param_groups(fast.net, fast.cfg) for p in g["params"]]
+    assert len(every) == len({id(p) for p in every}) == sum(p.requires_grad for p in fast.net.parameters())
