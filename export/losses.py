@@ -17,12 +17,23 @@ def ban_cls_loss(cls: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
     return 0.5 * loss_pos + 0.5 * loss_neg
 
 
-def ban_iou_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
-    """Linear IoU loss 1 - IoU between predicted and target (l, t, r, b) boxes at the positive points."""
-    if not (label == 1).any():
+def regression_points(target: torch.Tensor, label: torch.Tensor, region: str = "ellipse") -> torch.Tensor:
+    """Where the box is regressed: BAN's positive points ("ellipse"), or also every point inside the box
+    ("box", as Ocean/LightTrack train theirs): the tracker often picks a cell off the target's centre (the
+    window and the size penalty move it), and its box is only as good as that cell was trained."""
+    points = label == 1
+    if region == "box":
+        points = points | (target > 0).all(dim=1)
+    return points
+
+
+def ban_iou_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor, region: str = "ellipse") -> torch.Tensor:
+    """Linear IoU loss 1 - IoU between predicted and target (l, t, r, b) boxes at the regression points."""
+    points = regression_points(target, label, region)
+    if not points.any():
         return loc.sum() * 0
-    p = loc.permute(0, 2, 3, 1)[label == 1]
-    t = target.permute(0, 2, 3, 1)[label == 1]
+    p = loc.permute(0, 2, 3, 1)[points]
+    t = target.permute(0, 2, 3, 1)[points]
     pl, pt, pr, pb = p.unbind(1)
     tl, tt, tr, tb = t.unbind(1)
     inter = (torch.minimum(pl, tl) + torch.minimum(pr, tr)) * (torch.minimum(pt, tt) + torch.minimum(pb, tb))

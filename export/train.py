@@ -72,6 +72,7 @@ class TrainConfig:
     adversarial: bool = True              # ablation switches (Table IV)
     align_loss: bool = True
     align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output
+    loc_region: str = "ellipse"           # box regression at BAN's positive points, or "box": every point inside
     grad_clip: float = 10.0
     checkpoint_every: int = 100
     seed: int = 0
@@ -213,7 +214,7 @@ class Trainer:
         if self.adapter is not None:
             self.opt.add_param_group({"params": list(self.adapter.parameters()), "lr_mult": 1.0})
         self.step = 0
-        forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device, cfg.align_target)
+        forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device, cfg.align_target, cfg.loc_region)
         self.model = DistributedDataParallel(forward, find_unused_parameters=True) if world > 1 else forward
         self.dmodel = (DistributedDataParallel(self.disc) if world > 1 else self.disc) if self.disc else None
 
@@ -348,11 +349,12 @@ class TrainForward(nn.Module):
     """The tracker's side of one step in a single forward, so that DistributedDataParallel can wrap it."""
 
     def __init__(self, net: DaDiffNet, seed: int, device: torch.device | str = "cpu",
-                 align_target: str = "eps") -> None:
+                 align_target: str = "eps", loc_region: str = "ellipse") -> None:
         super().__init__()
         self.net = net
         self.gen = torch.Generator(device=device).manual_seed(seed)
         self.align_target = align_target
+        self.loc_region = loc_region
 
     def forward(self, z: torch.Tensor, x: torch.Tensor, label: torch.Tensor, loc_target: torch.Tensor, paired: bool,
                 z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
@@ -360,7 +362,8 @@ class TrainForward(nn.Module):
         zb, xb = net.template_branch(z), net.search_branch(x)
         cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
         zero = cls.sum() * 0
-        out = {"cls": ban_cls_loss(cls, label), "loc": ban_iou_loss(loc, loc_target, label), "align": zero,
+        region = self.loc_region
+        out = {"cls": ban_cls_loss(cls, label), "loc": ban_iou_loss(loc, loc_target, label, region), "align": zero,
                "night_cls": zero, "night_loc": zero, "night_states": [],
                "day_states": [s for b in (zb, xb) for level in b.states for s in level],
                "cls_map": cls, "loc_map": loc, "x_neck": xb.neck[0],  # the maps and neck: the teacher's losses
@@ -371,7 +374,8 @@ class TrainForward(nn.Module):
         out["night_states"] = [s for b in (zn, xn) for level in b.states for s in level]
         if paired:  # rendered from the day frames: the day boxes hold
             cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))
-            out["night_cls"], out["night_loc"] = ban_cls_loss(cls_n, label), ban_iou_loss(loc_n, loc_target, label)
+            out["night_cls"] = ban_cls_loss(cls_n, label)
+            out["night_loc"] = ban_iou_loss(loc_n, loc_target, label, region)
             out["night_cls_map"], out["night_loc_map"] = cls_n, loc_n
         if net.cfg.use_dadiff and self.align_target == "chain" and paired:
             # L_align on the inference chain itself: the sampler's output from the night features should be

@@ -26,7 +26,8 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "lambda_night_distill": (0, True),
 }
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
-                                       "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain")}
+                                       "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain"),
+                                       "loc_region": ("ellipse", "box")}
 ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings
 
 

@@ -302,3 +302,27 @@ def test_dadiff_lr_mult_gives_the_block_its_own_rate_and_keeps_two_groups_at_one
     assert block["lr"] == pytest.approx(5.0 * rest["lr"])
     every = [p for g in param_groups(fast.net, fast.cfg) for p in g["params"]]
     assert len(every) == len({id(p) for p in every}) == sum(p.requires_grad for p in fast.net.parameters())
+
+
+def test_loc_region_box_regresses_every_point_inside_the_target_box(tmp_path, capsys):
+    """loc_region "box" trains the box at every point inside it as well as at BAN's positive ellipse."""
+    import torch
+
+    from dadiff.export.losses import ban_iou_loss, regression_points
+    from dadiff.export.train import main
+    from dadiff.export.train_data import CropConfig, ban_targets
+
+    cfg = CropConfig()
+    label, target = (torch.from_numpy(a)[None] for a in ban_targets(np.array([0.0, 0.0, 120.0, 80.0]), cfg))
+    ellipse, box = regression_points(target, label), regression_points(target, label, "box")
+    inside = (target > 0).all(dim=1)
+    assert torch.equal(ellipse, label == 1) and torch.equal(box, inside | ellipse)
+    assert ellipse.sum() < box.sum()  # 120 x 80 crop px on the stride-8 map: 31 points in the ellipse, 135 in the box
+    # a prediction exact on the ellipse and off elsewhere costs nothing there and only in the box region
+    pred = torch.where(ellipse[:, None], target, target * 0.5 + 1.0)
+    assert ban_iou_loss(pred, target, label).item() == pytest.approx(0.0, abs=1e-6)
+    assert ban_iou_loss(pred, target, label, "box").item() > 0.1
+    bad = tmp_path / "region.toml"
+    bad.write_text('[train]\nloc_region = "everywhere"\n')
+    assert main(["--config", str(bad)]) == 2
+    assert "'loc_region' is 'everywhere'; expected one of ellipse, box" in capsys.readouterr().err
