@@ -82,6 +82,7 @@ class TrainConfig:
     lambda_night_trc: float = 0.0         # L_trc on the rendered night pairs too (their boxes are the day boxes)
     lambda_night_distill: float = 0.0     # the teacher's responses on the day crops as targets on the night pairs
     night_styles: list[str] = field(default_factory=lambda: ["real"])  # rendered night: one style per pair
+    night_pairs: str = "frame"            # "scene": one night camera and fixed lights over a scene's pair
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
@@ -404,7 +405,8 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
                       score_size=tr.score_size, context=tr.context_amount)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
-                        with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step)
+                        with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step,
+                        night_pairs=cfg.night_pairs)
     return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
                       persistent_workers=cfg.workers > 0)
 

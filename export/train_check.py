@@ -27,7 +27,7 @@ MINIMUM: dict[str, tuple[float, bool]] = {
 }
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain"),
-                                       "loc_region": ("ellipse", "box")}
+                                       "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}
 ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings
 
 

@@ -155,7 +155,19 @@ class SceneSource:
         self._uses += 1
         i, j = sorted(rng.integers(0, self.max_gap + 1, size=2))
         (fi, bi), (fj, bj) = scene.render(int(i)), scene.render(int(j))
+        self._pair = (scene, int(i), int(j))
         return fi, np.asarray(bi, np.float32), fj, np.asarray(bj, np.float32)
+
+    def night_pair(self, fi: np.ndarray, fj: np.ndarray, rng: np.random.Generator,
+                   style: str) -> tuple[np.ndarray, np.ndarray]:
+        """The last sampled pair at night as the evaluation's sequences are: one night camera over the scene
+        and its street lights fixed on the ground, so the pool the template was lit by is still there in the
+        search frame, with or without the target in it."""
+        from dadiff.runtime.evaluation.scenes import SceneNight
+
+        scene, i, j = self._pair
+        night = SceneNight(scene, rng, style)
+        return night(fi, i, rng), night(fj, j, rng)
 
 
 class SequenceSource:
@@ -252,8 +264,10 @@ class PairStream(IterableDataset):
     """Endless stream of samples; each worker / rank draws from its own seeded generator."""
 
     def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0,
-                 with_night: bool = True, night_styles: Sequence[str] = ("real",), start_step: int = 0) -> None:
+                 with_night: bool = True, night_styles: Sequence[str] = ("real",), start_step: int = 0,
+                 night_pairs: str = "frame") -> None:
         super().__init__()
+        self.night_pairs = night_pairs  # "scene": one night over a generated scene's pair; "frame": one per frame
         self.day_sources, self.cfg, self.seed, self.rank = day_sources, cfg, seed, rank
         self.start_step = start_step  # a resumed run draws new pairs instead of replaying the first ones
         self.with_night = with_night  # the baseline stage never looks at night data
@@ -294,7 +308,11 @@ class PairStream(IterableDataset):
                 zn, xn = z[:1, :1], x[:1, :1]  # placeholders, unused
             elif self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
                 style = self._night_style(rng)
-                zn, xn = wz.cut(self._night(fz, rng, style)), wx.cut(self._night(fx, rng, style))
+                if self.night_pairs == "scene" and hasattr(source, "night_pair"):
+                    nz, nx = source.night_pair(fz, fx, rng, style)
+                else:
+                    nz, nx = self._night(fz, rng, style), self._night(fx, rng, style)
+                zn, xn = wz.cut(nz), wx.cut(nx)
             else:
                 zn = self._crop_night(self.night_source.sample(rng), cfg.exemplar, rng)
                 xn = self._crop_night(self.night_source.sample(rng), cfg.instance, rng)

@@ -66,3 +66,32 @@ def test_a_resumed_stream_draws_new_pairs():
     fresh, again, resumed = first(0), first(0), first(600)
     assert np.array_equal(fresh["x"], again["x"])
     assert not np.array_equal(fresh["x"], resumed["x"])
+
+
+def test_scene_night_pairs_share_one_camera_and_its_lights():
+    """night_pairs "scene": a pair is lit as the evaluation's sequences are, by one night over the scene, so the
+    same frame twice differs only by sensor noise; rendered per frame it gets two cameras and two light sets."""
+    from dadiff.runtime.evaluation.night import render_night
+
+    source = SceneSource("train")
+    rng = np.random.default_rng(5)
+    frame, _, _, _ = source.sample(rng)
+    scene, i, _ = source._pair
+    source._pair = (scene, i, i)
+    a, b = (x.astype(np.float32) for x in source.night_pair(frame, frame, rng, "real"))
+    c, d = (render_night(frame, rng).astype(np.float32) for _ in range(2))
+    assert np.abs(a.mean(axis=2) - b.mean(axis=2)).mean() < 0.5 * np.abs(c.mean(axis=2) - d.mean(axis=2)).mean()
+
+
+def test_pair_stream_renders_scene_pairs_through_the_source_only_when_asked(monkeypatch):
+    calls = []
+
+    def one_night(self, fi, fj, rng, style):
+        calls.append(style)
+        return fi // 4, fj // 4
+
+    monkeypatch.setattr(SceneSource, "night_pair", one_night)
+    next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=0)))
+    assert calls == []  # default "frame": each frame its own night, as earlier runs were trained
+    next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=0, night_pairs="scene")))
+    assert calls == ["real"]
