@@ -83,6 +83,7 @@ class TrainConfig:
     lambda_night_distill: float = 0.0     # the teacher's responses on the day crops as targets on the night pairs
     night_styles: list[str] = field(default_factory=lambda: ["real"])  # rendered night: one style per pair
     night_pairs: str = "frame"            # "scene": one night camera and fixed lights over a scene's pair
+    night_path_lamps: float = 0.0         # share of scene-lit night pairs given lamp heads beside the target
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
@@ -117,6 +118,9 @@ class TrainConfig:
         if cfg.lambda_night_distill and (cfg.teacher is None or cfg.night is not None):
             raise ValueError(f"{path}: lambda_night_distill needs a teacher and night rendered from the day frames "
                              f"(paired); set 'teacher' and drop 'night'")
+        if cfg.night_path_lamps and (cfg.night_pairs != "scene" or cfg.night is not None):
+            raise ValueError(f"{path}: night_path_lamps needs night_pairs = \"scene\" (night rendered over the "
+                             f"generated scene); set it or drop night_path_lamps")
         if cfg.batch_size < 2:  # BatchNorm layers (head, channel weights) need 2+ samples per process
             raise ValueError(f"{path}: batch_size must be at least 2 per process, got {cfg.batch_size}")
         return cfg
@@ -406,7 +410,7 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0
                       score_size=tr.score_size, context=tr.context_amount)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
                         with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step,
-                        night_pairs=cfg.night_pairs)
+                        night_pairs=cfg.night_pairs, night_path_lamps=cfg.night_path_lamps)
     return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
                       persistent_workers=cfg.workers > 0)
 

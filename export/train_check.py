@@ -23,8 +23,9 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "disc_lr": (0, False), "disc_poly_power": (0, True),
     "lambda_trc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True), "grad_clip": (0, False),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
-    "lambda_night_distill": (0, True),
+    "lambda_night_distill": (0, True), "night_path_lamps": (0, True),
 }
+MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0}  # inclusive
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}
@@ -66,6 +67,8 @@ def _check_range(key: str, value: Any) -> None:
         low, inclusive = MINIMUM[key]
         if value < low or (not inclusive and value == low):
             raise ValueError(f"'{key}' is {value!r}; expected {'>=' if inclusive else '>'} {low:g}")
+    if key in MAXIMUM and value > MAXIMUM[key]:
+        raise ValueError(f"'{key}' is {value!r}; expected <= {MAXIMUM[key]:g}")
     if key in CHOICES and value not in CHOICES[key]:
         raise ValueError(f"'{key}' is {value!r}; expected one of {', '.join(CHOICES[key])}")
     for item in value if key in ITEM_CHOICES else ():

@@ -159,14 +159,17 @@ class SceneSource:
         return fi, np.asarray(bi, np.float32), fj, np.asarray(bj, np.float32)
 
     def night_pair(self, fi: np.ndarray, fj: np.ndarray, rng: np.random.Generator,
-                   style: str) -> tuple[np.ndarray, np.ndarray]:
+                   style: str, path_lamps: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The last sampled pair at night as the evaluation's sequences are: one night camera over the scene
         and its street lights fixed on the ground, so the pool the template was lit by is still there in the
-        search frame, with or without the target in it."""
+        search frame, with or without the target in it. `path_lamps`: the share of pairs that also get 1-3
+        lamp heads beside the target in the template or search frame (no draw at 0: the stream stays as it was)."""
         from dadiff.runtime.evaluation.scenes import SceneNight
 
         scene, i, j = self._pair
         night = SceneNight(scene, rng, style)
+        if path_lamps > 0 and rng.random() < path_lamps:
+            night.add_path_lamps(rng, (i, j), int(rng.integers(1, 4)))
         return night(fi, i, rng), night(fj, j, rng)
 
 
@@ -265,9 +268,10 @@ class PairStream(IterableDataset):
 
     def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0,
                  with_night: bool = True, night_styles: Sequence[str] = ("real",), start_step: int = 0,
-                 night_pairs: str = "frame") -> None:
+                 night_pairs: str = "frame", night_path_lamps: float = 0.0) -> None:
         super().__init__()
         self.night_pairs = night_pairs  # "scene": one night over a generated scene's pair; "frame": one per frame
+        self.night_path_lamps = night_path_lamps  # share of scene-lit pairs with lamps beside the target
         self.day_sources, self.cfg, self.seed, self.rank = day_sources, cfg, seed, rank
         self.start_step = start_step  # a resumed run draws new pairs instead of replaying the first ones
         self.with_night = with_night  # the baseline stage never looks at night data
@@ -309,7 +313,7 @@ class PairStream(IterableDataset):
             elif self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
                 style = self._night_style(rng)
                 if self.night_pairs == "scene" and hasattr(source, "night_pair"):
-                    nz, nx = source.night_pair(fz, fx, rng, style)
+                    nz, nx = source.night_pair(fz, fx, rng, style, self.night_path_lamps)
                 else:
                     nz, nx = self._night(fz, rng, style), self._night(fx, rng, style)
                 zn, xn = wz.cut(nz), wx.cut(nx)

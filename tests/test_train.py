@@ -326,3 +326,14 @@ def test_loc_region_box_regresses_every_point_inside_the_target_box(tmp_path, ca
     bad.write_text('[train]\nloc_region = "everywhere"\n')
     assert main(["--config", str(bad)]) == 2
     assert "'loc_region' is 'everywhere'; expected one of ellipse, box" in capsys.readouterr().err
+
+
+def test_night_path_lamps_config_is_a_share_of_scene_lit_pairs(tmp_path, capsys):
+    from dadiff.export.train import main
+
+    for text, message in (('night_pairs = "scene"\nnight_path_lamps = 1.5', "'night_path_lamps' is 1.5; expected <= 1"),
+                          ("night_path_lamps = 0.5", 'night_path_lamps needs night_pairs = "scene"')):
+        bad = tmp_path / "lamps.toml"
+        bad.write_text(f"[train]\n{text}\n")
+        assert main(["--config", str(bad)]) == 2
+        assert message in capsys.readouterr().err

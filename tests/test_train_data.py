@@ -86,12 +86,42 @@ def test_scene_night_pairs_share_one_camera_and_its_lights():
 def test_pair_stream_renders_scene_pairs_through_the_source_only_when_asked(monkeypatch):
     calls = []
 
-    def one_night(self, fi, fj, rng, style):
-        calls.append(style)
+    def one_night(self, fi, fj, rng, style, path_lamps):
+        calls.append((style, path_lamps))
         return fi // 4, fj // 4
 
     monkeypatch.setattr(SceneSource, "night_pair", one_night)
     next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=0)))
     assert calls == []  # default "frame": each frame its own night, as earlier runs were trained
     next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=0, night_pairs="scene")))
-    assert calls == ["real"]
+    next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=0, night_pairs="scene",
+                         night_path_lamps=0.5)))
+    assert calls == [("real", 0.0), ("real", 0.5)]
+
+
+def test_path_lamps_stand_beside_the_target_and_saturate():
+    """night_path_lamps: each added lamp head is fixed on the ground 0.7-2.5 target sizes from the target in the
+    chosen frame, saturates the picture there, and with the share at 0 nothing is drawn (streams stay as they were)."""
+    from dadiff.runtime.evaluation.scenes import SceneNight
+
+    source = SceneSource("train")
+    frame, box, _, _ = source.sample(np.random.default_rng(3))
+    scene, i, j = source._pair
+    night = SceneNight(scene, np.random.default_rng(4), "real")
+    before = len(night.lights.lamps)
+    plain = night(frame, i, np.random.default_rng(9))
+    night.add_path_lamps(np.random.default_rng(5), (i,), 3)
+    lamps = night._lights(i).lamps[before:before + 3]
+    assert len(night.lights.lamps) == before + 3
+    x, y, w, h = scene.boxes[i]
+    size = max(np.sqrt(w * h), 8.0)
+    reach = np.hypot(lamps[:, 0] - (x + w / 2), lamps[:, 1] - (y + h / 2)) / size
+    assert np.all((reach > 0.69) & (reach < 2.51))
+    lit = night(frame, i, np.random.default_rng(9))
+    inside = [(int(ly), int(lx)) for lx, ly in lamps[:, :2] if 0 <= lx < frame.shape[1] and 0 <= ly < frame.shape[0]]
+    assert inside and all(lit[r, c].max() >= 240 > plain[r, c].max() for r, c in inside)
+    rng_a, rng_b = np.random.default_rng(7), np.random.default_rng(7)
+    source._pair = (scene, i, j)
+    a = source.night_pair(frame, frame, rng_a, "real")
+    b = source.night_pair(frame, frame, rng_b, "real", 0.0)
+    assert all(np.array_equal(u, v) for u, v in zip(a, b, strict=True))

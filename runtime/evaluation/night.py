@@ -362,6 +362,20 @@ class NightLights:
         )
         return replace(self, pools=np.vstack([self.pools, pool]))
 
+    def with_lamp_at(
+        self, rng: np.random.Generator, kind: str, x: float, y: float, unit: float, pool: bool
+    ) -> NightLights:
+        """The same lights and one more saturating lamp head at (x, y), with its pool of light under it when
+        `pool` (a street light beside the target's path: the distractor a night tracker most often locks on)."""
+        colour = _pool_colour(rng, kind)
+        lamp = (x, y, rng.uniform(0.004, 0.008) * unit, rng.uniform(4, 40), *colour)
+        lights = replace(self, lamps=np.vstack([self.lamps, lamp]))
+        if not pool:
+            return lights
+        sigma = rng.uniform(0.05, 0.12) * unit
+        spot = (x, y, sigma, sigma * rng.uniform(0.6, 1.0), rng.uniform(0, np.pi), rng.uniform(0.4, 1.2), *colour)
+        return replace(lights, pools=np.vstack([self.pools, spot]))
+
     @functools.cached_property
     def _ground(self) -> np.ndarray:
         out = np.zeros((-(-self.height // _MAP_STEP), -(-self.width // _MAP_STEP), 3), np.float32)

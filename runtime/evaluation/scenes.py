@@ -78,6 +78,23 @@ class SceneNight:
             self.lights = scene.night_lights(rng, self.real.kind)
             self.gain = self.real.exposure(scene.render(0)[0], self._lights(0))
 
+    def add_path_lamps(self, rng: np.random.Generator, frames: tuple[int, ...], count: int) -> None:
+        """Put `count` more street lamps beside the target's path ("real" style only): each beside the target
+        in one of `frames` (0.7-2.5 target sizes from its centre, half of them over a pool), fixed on the
+        ground. Training uses it to show the lamp heads that night trackers lock on more often than the
+        scenes place them by chance; the exposure stays the one locked on frame 0."""
+        if self.style == "classic":
+            return
+        for _ in range(count):
+            k = int(frames[int(rng.integers(len(frames)))])
+            x, y, w, h = self.scene.boxes[k]
+            angle, reach = rng.uniform(0, 2 * np.pi), rng.uniform(0.7, 2.5) * max(np.sqrt(w * h), 8.0)
+            where = np.array([x + w / 2 + reach * np.cos(angle), y + h / 2 + reach * np.sin(angle)])
+            camera = self.scene.cameras[k]
+            gx, gy = np.linalg.solve(camera[:, :2], where - camera[:, 2])  # frame -> ground (background)
+            unit = min(self.scene.size) / np.sqrt(abs(np.linalg.det(camera[:, :2])))
+            self.lights = self.lights.with_lamp_at(rng, self.real.kind, float(gx), float(gy), unit, rng.random() < 0.5)
+
     def _lights(self, i: int) -> FrameLights:
         return self.lights.at(self.scene.cameras[i], i, *self.scene.size)
 
