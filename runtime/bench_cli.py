@@ -45,6 +45,7 @@ from .evaluation.evaluate import (
     OpenCVTracker,
     generated_night_set,
     nano_available,
+    nano_files,
     nano_label,
     run_tracker,
     score_folder,
@@ -52,6 +53,7 @@ from .evaluation.evaluate import (
     tracker_folder,
 )
 from .evaluation.scene_error import SceneError
+from .instructions import UPDATES, InstructionCountError, count_updates, valgrind_path
 from .onnx_backend import physical_cores, thread_count
 from .tracker import Tracker
 
@@ -93,6 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: on when its weights are found)")
     p.add_argument("--nano-dir", type=Path, metavar="DIR",
                    help="NanoTrack v2 ONNX folder (default: ../shared/weights/nanotrack/v2 beside the checkout)")
+    p.add_argument("--instructions", action="store_true",
+                   help="instead of timing, count instructions per update under valgrind, which runs the "
+                        "program as a CPU without AVX-512 would (AVX2/FMA kernels), beside TrackerNano's: a "
+                        "speed estimate for such CPUs (minutes per tracker; needs valgrind)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
     return p
 
@@ -302,7 +308,48 @@ def print_report(report: dict) -> None:
                       f"measured {r['search']['p50']:.1f} ms = {100 * floor / r['search']['p50']:.0f} % of the limit")
 
 
+def run_instructions(args: argparse.Namespace, models: list[Path]) -> dict:
+    """Instructions per update of each model and of TrackerNano, counted under valgrind on one clip."""
+    valgrind_path()
+    use_nano = _use_nano(args)
+    with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
+        video = write_night_video(Path(tmp), args.seed, args.clip)
+        counts = [count_updates("model", str(m), video.path, video.first_box, m.name) for m in models]
+        if use_nano:
+            nano_dir = str(nano_files(args.nano_dir)[0].parent)
+            counts.append(count_updates("nano", nano_dir, video.path, video.first_box, nano_label()))
+    report = {"machine": _cpu(), "mode": "instructions", "video": f"generated night sequence {video.name}",
+              "updates": list(UPDATES), "results": [vars(c) for c in counts[:len(models)]]}
+    if use_nano:
+        report["nano"] = vars(counts[-1])
+    return report
+
+
+def print_instructions(report: dict) -> None:
+    head = report["machine"]
+    first, last = report["updates"]
+    print(f"dadiff-bench --instructions: {head['cpu']} ({_flags_text(head['flags'])}) run under valgrind, which "
+          f"shows a CPU with AVX2/FMA and without AVX-512; 1 thread; {report['video']}; instructions of "
+          f"updates {first + 1}-{last} / {last - first}")
+    nano = report.get("nano")
+    rows = [*report["results"], *([nano] if nano else [])]
+    width = max(len(r["name"]) for r in rows) + 2
+    print(f"{'tracker':{width}s}{'instructions per update':>26s}" + (f"{'vs TrackerNano':>18s}" if nano else ""))
+    for r in rows:
+        ratio = f"{nano['instructions'] / r['instructions']:>17.2f}x" if nano else ""
+        print(f"{r['name']:{width}s}{r['instructions'] / 1e6:>24.1f} M" + ratio)
+    if nano:
+        print("vs TrackerNano: its instructions per update / this one's, an estimate of the frame-rate ratio on "
+              "a CPU without AVX-512 (instructions are not seconds)")
+
+
 def run(args: argparse.Namespace) -> dict:
+    if args.instructions:
+        try:
+            models = [Path(resolve(m)) for m in (args.models or [None])]
+        except ModelNotFoundError as exc:
+            raise ModelError(str(exc)) from None
+        return run_instructions(args, models)
     if args.compare_torch:
         _export_side("--compare-torch")
     if args.peak or args.sweep_steps:
@@ -346,7 +393,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         report = run(args)
-    except (BenchError, ModelError, InputError, OSError, SceneError, DatasetError, EvalError) as exc:
+    except (BenchError, ModelError, InputError, OSError, SceneError, DatasetError, EvalError,
+            InstructionCountError) as exc:
         print(f"dadiff-bench: error: {exc}", file=sys.stderr)  # SceneError: e.g. scikit-image missing
         return 2
     except KeyboardInterrupt:
@@ -354,6 +402,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     if args.json:
         print(json.dumps(report, indent=1))
+    elif args.instructions:
+        print_instructions(report)
     else:
         print_report(report)
     return 0
