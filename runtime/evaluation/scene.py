@@ -203,19 +203,27 @@ class Scene:
             return 0.0, 0.0
         a, b = (i - 1, i) if i > 0 else (0, 1)
         centre = np.array(self.size, np.float64) / 2
-        world = np.linalg.solve(self.cameras[b][:, :2], centre - self.cameras[b][:, 2])
+        world = self.on_ground(b, centre)
         before = self.cameras[a][:, :2] @ world + self.cameras[a][:, 2]
         return float(centre[0] - before[0]), float(centre[1] - before[1])
+
+    def on_ground(self, i: int, point: np.ndarray) -> np.ndarray:
+        """A point of frame i (x, y) in the background's pixel coordinates (the ground the camera films)."""
+        camera = self.cameras[i]
+        return np.linalg.solve(camera[:, :2], point - camera[:, 2])
+
+    def ground_unit(self, i: int) -> float:
+        """Frame i's short side in background pixels: what lights on the ground are sized by."""
+        return min(self.size) / math.sqrt(abs(np.linalg.det(self.cameras[i][:, :2])))
 
     def night_lights(self, rng: np.random.Generator, kind: str) -> NightLights:
         """Street lights of a "real" night over this scene: fixed on the ground (the background), sized for
         the frame, and most of the time one pool lighting the target where it starts."""
         h, w = self.background.shape[:2]
-        linear = self.cameras[0][:, :2]
-        unit = min(self.size) / math.sqrt(abs(np.linalg.det(linear)))
+        unit = self.ground_unit(0)
         lights = NightLights.random(rng, kind, w, h, unit)
         if rng.random() < 0.6:
-            x, y = np.linalg.solve(linear, self.target.centre[0] - self.cameras[0][:, 2])
+            x, y = self.on_ground(0, self.target.centre[0])
             lights = lights.with_pool_at(rng, kind, float(x), float(y), unit)
         return lights
 

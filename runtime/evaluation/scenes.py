@@ -90,10 +90,10 @@ class SceneNight:
             x, y, w, h = self.scene.boxes[k]
             angle, reach = rng.uniform(0, 2 * np.pi), rng.uniform(0.7, 2.5) * max(np.sqrt(w * h), 8.0)
             where = np.array([x + w / 2 + reach * np.cos(angle), y + h / 2 + reach * np.sin(angle)])
-            camera = self.scene.cameras[k]
-            gx, gy = np.linalg.solve(camera[:, :2], where - camera[:, 2])  # frame -> ground (background)
-            unit = min(self.scene.size) / np.sqrt(abs(np.linalg.det(camera[:, :2])))
-            self.lights = self.lights.with_lamp_at(rng, self.real.kind, float(gx), float(gy), unit, rng.random() < 0.5)
+            gx, gy = self.scene.on_ground(k, where)
+            self.lights = self.lights.with_lamp_at(
+                rng, self.real.kind, float(gx), float(gy), self.scene.ground_unit(k), rng.random() < 0.5
+            )
 
     def _lights(self, i: int) -> FrameLights:
         return self.lights.at(self.scene.cameras[i], i, *self.scene.size)
