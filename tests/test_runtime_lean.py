@@ -144,6 +144,13 @@ def test_threads_default_to_physical_cores() -> None:
     assert backend_module.session_options().intra_op_num_threads == cores
 
 
+def test_pool_threads_spin_within_a_call_only() -> None:
+    """Spinning between kernels of one call, stopped when it returns: an idle tracker burns no CPU."""
+    options = backend_module.session_options()
+    assert options.get_session_config_entry("session.intra_op.allow_spinning") == "1"
+    assert options.get_session_config_entry("session.force_spinning_stop") == "1"
+
+
 def test_optimised_graphs_are_cached_and_reused(model_dir: Path, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setenv("DADIFF_CACHE_DIR", str(tmp_path / "cache"))
     first = OnnxBackend(model_dir, threads=1)
