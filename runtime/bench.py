@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import resource
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -91,7 +92,8 @@ class BenchRun:
     """Raw per-frame timings (seconds) after warm-up, init timings, and memory samples.
 
     The timings go into arrays allocated and touched before the first frame, so that the benchmark's own
-    bookkeeping does not show up as memory growth of the tracker.
+    bookkeeping does not show up as memory growth of the tracker. `seconds` is the time spent in this
+    tracker's own frames, so the frame rate is its own even when other trackers ran in between.
     """
 
     frames: int
@@ -106,12 +108,14 @@ class BenchRun:
         out: dict = {"frames": self.frames, "seconds": self.seconds, "fps": self.frames / self.seconds}
         for name, values in {**self.stages, "template": self.template}.items():
             out[name] = latency_ms(values) if len(values) else None
-        tracker, frame, search = (np.asarray(self.stages[k]) for k in ("tracker", "frame", "search"))
-        out["outside_onnx_tracker"] = float(np.median((tracker - search) / tracker))
-        out["outside_onnx_frame"] = float(np.median((frame - search) / frame))
-        first, last = self.rss[0][1], self.rss[-1][1]
-        out["rss_mb"] = {"first": first / 2**20, "last": last / 2**20, "growth": (last - first) / 2**20,
-                         "peak": self.peak_rss / 2**20, "samples": [(i, b / 2**20) for i, b in self.rss]}
+        if "search" in self.stages:
+            tracker, frame, search = (np.asarray(self.stages[k]) for k in ("tracker", "frame", "search"))
+            out["outside_onnx_tracker"] = float(np.median((tracker - search) / tracker))
+            out["outside_onnx_frame"] = float(np.median((frame - search) / frame))
+        if self.rss:
+            first, last = self.rss[0][1], self.rss[-1][1]
+            out["rss_mb"] = {"first": first / 2**20, "last": last / 2**20, "growth": (last - first) / 2**20,
+                             "peak": self.peak_rss / 2**20, "samples": [(i, b / 2**20) for i, b in self.rss]}
         return out
 
 
@@ -131,92 +135,118 @@ def _init(tracker: Tracker | BoxTracker, capture: cv2.VideoCapture, video: Night
     return time.perf_counter() - start
 
 
-def run_bench(
-    tracker: Tracker, video: NightVideo, frames: int, warmup: int = 20, template_runs: int = 10,
-    progress: Callable[[int], None] | None = None,
-) -> BenchRun:
-    """Track `frames` frames (after `warmup` untimed ones), looping the video with a re-init at its start."""
-    encode = StatusEncoder()
-    capture = _open(video)
-    template = []
-    for _ in range(template_runs):  # the template branch on its own, then the real init
-        capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
-        template.append(_init(tracker, capture, video))
-    run = BenchRun(frames=frames, seconds=0.0, template=template[1:],
-                   stages={s: np.full(frames, np.nan) for s in STAGES})
-    started = time.perf_counter()
-    try:
-        for i in range(-warmup, frames):
-            if i == 0:
-                started = time.perf_counter()
-                run.rss.append((0, rss_bytes()))
-            t0 = time.perf_counter()
-            ok, frame = capture.read()
-            if not ok:  # end of the clip: start it again on the same target
-                capture.release()
-                capture = _open(video)
-                run.template.append(_init(tracker, capture, video))
-                t0 = time.perf_counter()
-                ok, frame = capture.read()
-            t1 = time.perf_counter()
-            result = tracker.update(frame)
-            t2 = time.perf_counter()
-            encode(result, (frame.shape[1], frame.shape[0]), i)
-            t3 = time.perf_counter()
-            if i < 0:
-                continue
-            lat = result.latency
-            for name, value in (("decode", t1 - t0), ("crop", lat["crop"]), ("search", lat["search"]),
-                                ("post", lat["post"]), ("encode", t3 - t2), ("tracker", t2 - t1), ("frame", t3 - t0)):
-                run.stages[name][i] = value
-            if (i + 1) % RSS_EVERY == 0 or i == frames - 1:
-                run.rss.append((i + 1, rss_bytes()))
-            if progress is not None:
-                progress(i + 1)
-    finally:
-        capture.release()
-    run.seconds = time.perf_counter() - started
-    run.peak_rss = peak_rss_bytes()
-    return run
+class BenchLane:
+    """One tracker's pass over the looped clip, run a block of frames at a time.
 
-
-def run_baseline_bench(
-    tracker: BoxTracker, video: NightVideo, frames: int, warmup: int = 20, template_runs: int = 10
-) -> dict:
-    """A baseline tracker (OpenCV's TrackerNano) on the same clip, looped the same way as `run_bench`.
-
-    Only the stages it has: video decode, its update, the frame end to end (decode + update, no 275
-    packing), and its init (template branch); the same summary keys as `BenchRun.summary`.
+    A dadiff `Tracker` gets every stage (crop, search, post from its own latency record, plus the MAVLink
+    275 packing); a baseline `BoxTracker` (OpenCV's TrackerNano) only video decode, update and frame.
+    `cv2_threads`, when set, is OpenCV's thread count during this lane's frames.
     """
-    capture = _open(video)
-    template = []
-    for _ in range(template_runs):
-        capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
-        template.append(_init(tracker, capture, video))
-    stages = {s: np.full(frames, np.nan) for s in ("decode", "tracker", "frame")}
-    started = time.perf_counter()
-    try:
-        for i in range(-warmup, frames):
-            if i == 0:
-                started = time.perf_counter()
+
+    def __init__(self, tracker: Tracker | BoxTracker, video: NightVideo, frames: int, template_runs: int = 10,
+                 cv2_threads: int | None = None) -> None:
+        self.tracker, self.video, self.frames, self.cv2_threads = tracker, video, frames, cv2_threads
+        self.full = isinstance(tracker, Tracker)
+        self.encode = StatusEncoder() if self.full else None
+        stages = STAGES if self.full else ("decode", "tracker", "frame")
+        self.capture = _open(video)
+        with self._threads():
+            template = []
+            for _ in range(template_runs):  # the template branch on its own, then the real init
+                self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
+                template.append(_init(tracker, self.capture, video))
+        self.run = BenchRun(frames=frames, seconds=0.0, template=template[1:],
+                            stages={s: np.full(frames, np.nan) for s in stages})
+        self.done = 0
+
+    @contextmanager
+    def _threads(self) -> Iterator[None]:
+        before = cv2.getNumThreads()
+        if self.cv2_threads is not None:
+            cv2.setNumThreads(self.cv2_threads)
+        try:
+            yield
+        finally:
+            cv2.setNumThreads(before)
+
+    def _frame(self) -> tuple[np.ndarray, float]:
+        """The next frame and the moment its decode started; the clip restarts with a re-init at its end."""
+        t0 = time.perf_counter()
+        ok, frame = self.capture.read()
+        if not ok:
+            self.capture.release()
+            self.capture = _open(self.video)
+            self.run.template.append(_init(self.tracker, self.capture, self.video))
             t0 = time.perf_counter()
-            ok, frame = capture.read()
-            if not ok:
-                capture.release()
-                capture = _open(video)
-                template.append(_init(tracker, capture, video))
-                t0 = time.perf_counter()
-                ok, frame = capture.read()
-            t1 = time.perf_counter()
-            tracker.update(frame)
-            t2 = time.perf_counter()
-            if i >= 0:
-                stages["decode"][i], stages["tracker"][i], stages["frame"][i] = t1 - t0, t2 - t1, t2 - t0
+            ok, frame = self.capture.read()
+        return frame, t0
+
+    def warm_up(self, count: int) -> None:
+        """Untimed frames: kernels chosen, caches and buffers filled."""
+        with self._threads():
+            for _ in range(count):
+                frame, _ = self._frame()
+                result = self.tracker.update(frame)
+                if self.encode is not None:
+                    self.encode(result, (frame.shape[1], frame.shape[0]), -1)
+
+    def advance(self, count: int, progress: Callable[[int], None] | None = None) -> None:
+        """Time the next `count` frames (fewer at the end of the run)."""
+        run = self.run
+        with self._threads():
+            started = time.perf_counter()
+            for i in range(self.done, min(self.done + count, self.frames)):
+                if i == 0:
+                    run.rss.append((0, rss_bytes()))
+                frame, t0 = self._frame()
+                t1 = time.perf_counter()
+                result = self.tracker.update(frame)
+                t2 = time.perf_counter()
+                if self.encode is None:
+                    timed = {"decode": t1 - t0, "tracker": t2 - t1, "frame": t2 - t0}
+                else:
+                    self.encode(result, (frame.shape[1], frame.shape[0]), i)
+                    t3 = time.perf_counter()
+                    lat = result.latency
+                    timed = {"decode": t1 - t0, "crop": lat["crop"], "search": lat["search"], "post": lat["post"],
+                             "encode": t3 - t2, "tracker": t2 - t1, "frame": t3 - t0}
+                for name, value in timed.items():
+                    run.stages[name][i] = value
+                if (i + 1) % RSS_EVERY == 0 or i == self.frames - 1:
+                    run.rss.append((i + 1, rss_bytes()))
+                self.done = i + 1
+                if progress is not None:
+                    progress(i + 1)
+            run.seconds += time.perf_counter() - started
+
+    def finish(self) -> BenchRun:
+        self.capture.release()
+        self.run.peak_rss = peak_rss_bytes()
+        return self.run
+
+
+def run_lanes(lanes: Sequence[BenchLane], warmup: int = 20, block: int = 50,
+              progress: Callable[[int], None] | None = None) -> list[BenchRun]:
+    """Run the lanes in turns of `block` frames each (0: each lane to its end, one after another).
+
+    Turns keep a slow minute of a shared machine from landing on one tracker only: their ratio is then
+    measured over the same stretch of time. Every lane warms up just before its first timed frame.
+    """
+    try:
+        if block <= 0:
+            for lane in lanes:
+                lane.warm_up(warmup)
+                lane.advance(lane.frames, progress)
+        else:
+            for lane in lanes:
+                lane.warm_up(warmup)
+            while any(lane.done < lane.frames for lane in lanes):
+                for lane in lanes:
+                    lane.advance(block, progress)
+        return [lane.finish() for lane in lanes]
     finally:
-        capture.release()
-    seconds = time.perf_counter() - started
-    return {"frames": frames, "seconds": seconds, "fps": frames / seconds, "template": latency_ms(template[1:]),
-            **{name: latency_ms(values) for name, values in stages.items()}}
+        for lane in lanes:
+            lane.capture.release()
 
 
 def search_crops(tracker: Tracker, video: NightVideo, count: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,7 +1,8 @@
 """`dadiff-bench [MODEL ...]`: per-stage latency, FPS and memory of one or more models, side by side.
 
-The models run one after another on the same generated night video (same frames, same threads); the first
-is the reference for the ratios. `--compare-torch` times the PyTorch graph on the same crops (a subprocess:
+The models take turns of 50 frames (`--interleave`) on the same generated night video (same frames, same
+threads), so that their ratios are measured over the same stretch of time; the first is the reference for
+the ratios. `--compare-torch` times the PyTorch graph on the same crops (a subprocess:
 this package never imports torch), `--sweep-steps` re-exports a checkpoint with other DDIM step counts and
 sets speed beside night success, `--peak` measures the CPU's arithmetic limit. OpenCV's TrackerNano
 (NanoTrack v2) runs on the same frames as a reference point when its weights are here (`--no-nano` skips it).
@@ -28,10 +29,11 @@ from tqdm import tqdm
 from dadiff.models import ModelNotFoundError, resolve
 
 from .bench import (
+    BenchLane,
+    BenchRun,
     NightVideo,
     latency_ms,
-    run_baseline_bench,
-    run_bench,
+    run_lanes,
     search_crops,
     time_search,
     write_night_video,
@@ -75,6 +77,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("models", nargs="*", help="model folders or shipped names (default: the shipped default)")
     p.add_argument("--frames", type=positive_int, default=1000, help="timed frames per model (default 1000)")
     p.add_argument("--warmup", type=int, default=20, help="untimed frames first (default 20)")
+    p.add_argument("--interleave", type=int, default=50, metavar="N",
+                   help="frames each tracker runs per turn, the trackers taking turns until each has run "
+                        "--frames (default 50), so that a busy stretch of a shared machine falls on all of "
+                        "them; 0: one tracker after another")
     p.add_argument("--clip", type=positive_int, default=300, help="length of the generated clip, looped (300)")
     p.add_argument("--seed", type=int, default=0, help="generated night sequence (default 0, test photos)")
     p.add_argument("--threads", type=positive_int, help="intra-op threads (default: physical cores)")
@@ -128,17 +134,16 @@ def _checkpoint(args: argparse.Namespace, folder: Path) -> Path:
     return path
 
 
-def _bench_model(model: Path, args: argparse.Namespace, video: NightVideo, night: Dataset | None, torch: bool,
-                 results: Path) -> dict:
-    """One model's report; `torch`: also time the PyTorch graph on the same crops."""
+def _model_lane(model: Path, args: argparse.Namespace, video: NightVideo) -> BenchLane:
     tracker = Tracker.load(model, provider=args.provider, threads=args.threads)
+    return BenchLane(tracker, video, args.frames)
+
+
+def _model_result(model: Path, lane: BenchLane, run: BenchRun, args: argparse.Namespace, video: NightVideo,
+                  night: Dataset | None, torch: bool, results: Path) -> dict:
+    """One model's report; `torch`: also time the PyTorch graph on the same crops."""
+    tracker = lane.tracker
     meta = tracker.backend.meta
-    bar = tqdm(total=args.frames, desc=meta.get("name", model.name), unit="frame", leave=False,
-               disable=args.json or not sys.stderr.isatty())
-    try:
-        run = run_bench(tracker, video, args.frames, args.warmup, progress=lambda _: bar.update())
-    finally:
-        bar.close()
     result = {"model": str(model), "name": meta.get("name", model.name), "precision": meta.get("precision", "fp32"),
               "ddim_steps": int(meta.get("ddim_steps", 0)), "gflop_search": float(meta.get("gflop_search", "nan")),
               "providers": list(getattr(tracker.backend, "providers", [])), **run.summary()}
@@ -219,22 +224,21 @@ def _use_nano(args: argparse.Namespace) -> bool:
     return True
 
 
-def _bench_nano(args: argparse.Namespace, video: NightVideo, night: Dataset | None, results: Path,
-                threads: int) -> dict:
-    """TrackerNano on the same clip (and night set) with OpenCV's threads set to ours (`_use_nano` checked it)."""
-    tracker = OpenCVTracker("nano", nano_dir=args.nano_dir)
-    before = cv2.getNumThreads()
-    cv2.setNumThreads(threads)
-    try:
-        result = {"name": nano_label(), "model": "cv2.TrackerNano", **run_baseline_bench(
-            tracker, video, args.frames, args.warmup)}
-        if night is not None:
+def _nano_result(lane: BenchLane, run: BenchRun, night: Dataset | None, results: Path) -> dict:
+    """TrackerNano's report: its stages from the shared run, and night success with OpenCV's threads set to ours."""
+    summary = run.summary()
+    summary.pop("rss_mb", None)  # the process's memory, already in the models' columns
+    result = {"name": nano_label(), "model": "cv2.TrackerNano", **summary}
+    if night is not None:
+        tracker = lane.tracker
+        before = cv2.getNumThreads()
+        cv2.setNumThreads(lane.cv2_threads)
+        try:
             run_tracker(tracker, "nano", night, results, progress=False)
-            scores = score_folder(night, tracker_folder(results, night.name, "nano"), "nano").overall
-            result["night"] = {"success": scores.success, "precision": scores.precision,
-                               "sequences": scores.sequences}
-    finally:
-        cv2.setNumThreads(before)
+        finally:
+            cv2.setNumThreads(before)
+        scores = score_folder(night, tracker_folder(results, night.name, "nano"), "nano").overall
+        result["night"] = {"success": scores.success, "precision": scores.precision, "sequences": scores.sequences}
     return result
 
 
@@ -368,9 +372,17 @@ def run(args: argparse.Namespace) -> dict:
         night = None
         if args.success > 0:
             night = generated_night_set(Path(tmp) / "night", args.success, args.success_frames, SUCCESS_SEED)
-        results = [_bench_model(m, args, video, night, args.compare_torch and i == 0, Path(tmp) / f"results{i}")
-                   for i, m in enumerate(models)]
-        nano = _bench_nano(args, video, night, Path(tmp) / "results-nano", threads) if use_nano else None
+        lanes = [_model_lane(m, args, video) for m in models]
+        if use_nano:  # OpenCV's threads set to ours while it runs (`_use_nano` checked the weights)
+            lanes.append(BenchLane(OpenCVTracker("nano", nano_dir=args.nano_dir), video, args.frames,
+                                   cv2_threads=threads))
+        with tqdm(total=args.frames * len(lanes), desc="frames", unit="frame", leave=False,
+                  disable=args.json or not sys.stderr.isatty()) as bar:
+            runs = run_lanes(lanes, args.warmup, args.interleave, progress=lambda _: bar.update())
+        results = [_model_result(m, lane, r, args, video, night, args.compare_torch and i == 0,
+                                 Path(tmp) / f"results{i}")
+                   for i, (m, lane, r) in enumerate(zip(models, lanes, runs, strict=False))]
+        nano = _nano_result(lanes[-1], runs[-1], night, Path(tmp) / "results-nano") if use_nano else None
     names = [r["name"] for r in results]
     for r in results:  # two models with one metadata name (an fp32 model and its int8 copy): show folders
         if names.count(r["name"]) > 1:
@@ -389,8 +401,8 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.warmup < 0 or args.success < 0:
-        print("dadiff-bench: error: --warmup and --success must be >= 0", file=sys.stderr)
+    if args.warmup < 0 or args.success < 0 or args.interleave < 0:
+        print("dadiff-bench: error: --warmup, --success and --interleave must be >= 0", file=sys.stderr)
         return 2
     try:
         report = run(args)

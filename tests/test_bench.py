@@ -8,10 +8,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from dadiff.runtime import bench_cli
-from dadiff.runtime.bench import STAGES
+from dadiff.runtime.bench import STAGES, BenchLane, run_lanes, write_night_video
 from dadiff.runtime.evaluation.evaluate import DEFAULT_NANO_DIR, nano_available
 from runtime_models import write_corr_model
 
@@ -97,7 +98,8 @@ def test_peak_is_measured(model_dir: Path, capsys) -> None:
         (["/no/such/model"], "/no/such/model"),
         (["{model}", "--compare-torch", "--frames", "2"], "checkpoint.pt: checkpoint not found"),
         (["{model}", "--sweep-steps", "one", "--checkpoint", "{model}/search.onnx"], "--sweep-steps"),
-        (["{model}", "--success", "-1"], "--success must be >= 0"),
+        (["{model}", "--success", "-1"], "--success and --interleave must be >= 0"),
+        (["{model}", "--interleave", "-5"], "--interleave must be >= 0"),
     ],
 )
 def test_bad_input_is_one_line(model_dir: Path, capsys, argv: list[str], expected: str) -> None:
@@ -105,3 +107,31 @@ def test_bad_input_is_one_line(model_dir: Path, capsys, argv: list[str], expecte
     assert bench_cli.main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and expected in err and err.startswith("dadiff-bench: error:")
+
+
+class _LoggingTracker:
+    """A baseline-style tracker that records which lane ran when (a test double for the turn order)."""
+
+    def __init__(self, name: str, log: list[str]) -> None:
+        self.name, self.log = name, log
+
+    def init(self, frame, box) -> None:
+        pass
+
+    def update(self, frame):
+        self.log.append(self.name)
+        return (0.0, 0.0, 1.0, 1.0)
+
+
+@pytest.mark.parametrize(("block", "expected"), [
+    (3, "aa bb aaa bbb aaa bbb a b"),
+    (0, "aa aaaaaaa bb bbbbbbb"),
+])
+def test_lanes_take_turns(tmp_path: Path, block: int, expected: str) -> None:
+    video = write_night_video(tmp_path, frames=5)
+    log: list[str] = []
+    lanes = [BenchLane(_LoggingTracker(n, log), video, frames=7, template_runs=2) for n in "ab"]
+    runs = run_lanes(lanes, warmup=2, block=block)
+    assert "".join(log) == expected.replace(" ", "")
+    for run in runs:  # each lane's own time only, every frame timed once
+        assert run.frames == 7 and run.seconds > 0 and not np.isnan(run.stages["frame"]).any()
