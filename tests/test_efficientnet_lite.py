@@ -98,3 +98,21 @@ def test_load_rejects_key_missing_from_file(tmp_path) -> None:
     torch.save(state, path)
     with pytest.raises(ValueError, match=r"missing from the file: _blocks\.3\._depthwise_conv\.weight"):
         load_imagenet_weights(EfficientNetLite0(last_block=4, out_blocks=(4,)), str(path))
+
+
+def test_folded_normalisation_computes_the_same(classifier: EfficientNetLite0) -> None:
+    """The export's fold (std and channel swap in the stem weights) changes no output, borders included."""
+    import copy
+
+    folded = copy.deepcopy(classifier)
+    folded.fold_normalisation()
+    folded.fold_normalisation()  # a second call must not fold twice
+    x = torch.randint(0, 256, (1, 3, 131, 131)).float()  # odd size: the stride-2 stem pads both sides
+    with torch.no_grad():
+        before, after = classifier(x), folded(x)
+        stem_before = classifier._conv_stem(classifier.normalize(x))
+        stem_after = folded._conv_stem(folded.normalize(x))
+    assert folded.folded and not classifier.folded
+    assert (stem_after - stem_before).abs().max().item() < 1e-4
+    assert (after - before).abs().max().item() < 1e-3
+    assert not torch.equal(folded._conv_stem.weight, classifier._conv_stem.weight)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import onnx
 import pytest
 
 torch = pytest.importorskip("torch")
@@ -68,6 +69,9 @@ def test_export_parity_and_family_detection(tmp_path, mobile):
     report = export_model(loaded, tmp_path / "model", "test-mobile")
     assert report.max_parity < 1e-4
     assert report.gflop_search <= BUDGET_GFLOP
+    stem = [n.op_type for n in onnx.load(tmp_path / "model" / "search.onnx").graph.node
+            if n.name.startswith("/backbone/") and "_blocks" not in n.name]
+    assert "Div" not in stem and "Slice" not in stem and stem.count("Sub") == 1  # normalisation folded
     from dadiff.runtime.tracker import Tracker
 
     tracker = Tracker.load(tmp_path / "model", threads=1)
