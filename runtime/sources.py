@@ -35,7 +35,8 @@ class SourceError(Exception):
 # libpng, OpenCV's own AVI/MJPEG reader, FFmpeg.
 DECODER_NOISE = ("JPEG", "jpeg", "libpng", "Corrupt", "Premature end", "extraneous bytes", "marker", "Huffman",
                  "Unexpected element", "Expected:", "AVI", "avi", "mjpeg", "h264", "mpeg4", "moov", "[mov",
-                 "Invalid", "invalid", "error while decoding", "decode_slice", "concealing")
+                 "Invalid", "invalid", "error while decoding", "decode_slice", "concealing",
+                 "cap_ffmpeg_impl")  # OpenCV 5.1's FFmpeg backend logs its failed opens itself
 
 
 class QuietDecoder:
