@@ -146,11 +146,11 @@ class BenchLane:
     def __init__(self, tracker: Tracker | BoxTracker, video: NightVideo, frames: int, template_runs: int = 10,
                  cv2_threads: int | None = None) -> None:
         self.tracker, self.video, self.frames, self.cv2_threads = tracker, video, frames, cv2_threads
-        self.full = isinstance(tracker, Tracker)
-        self.encode = StatusEncoder() if self.full else None
-        stages = STAGES if self.full else ("decode", "tracker", "frame")
+        full = isinstance(tracker, Tracker)
+        self.encode = StatusEncoder() if full else None
+        stages = STAGES if full else ("decode", "tracker", "frame")
         self.capture = _open(video)
-        with self._threads():
+        with self.opencv_threads():
             template = []
             for _ in range(template_runs):  # the template branch on its own, then the real init
                 self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
@@ -160,7 +160,8 @@ class BenchLane:
         self.done = 0
 
     @contextmanager
-    def _threads(self) -> Iterator[None]:
+    def opencv_threads(self) -> Iterator[None]:
+        """OpenCV's thread count set to this lane's (when it has one) for the block, then restored."""
         before = cv2.getNumThreads()
         if self.cv2_threads is not None:
             cv2.setNumThreads(self.cv2_threads)
@@ -183,7 +184,7 @@ class BenchLane:
 
     def warm_up(self, count: int) -> None:
         """Untimed frames: kernels chosen, caches and buffers filled."""
-        with self._threads():
+        with self.opencv_threads():
             for _ in range(count):
                 frame, _ = self._frame()
                 result = self.tracker.update(frame)
@@ -193,7 +194,7 @@ class BenchLane:
     def advance(self, count: int, progress: Callable[[int], None] | None = None) -> None:
         """Time the next `count` frames (fewer at the end of the run)."""
         run = self.run
-        with self._threads():
+        with self.opencv_threads():
             started = time.perf_counter()
             for i in range(self.done, min(self.done + count, self.frames)):
                 if i == 0:
@@ -220,7 +221,6 @@ class BenchLane:
             run.seconds += time.perf_counter() - started
 
     def finish(self) -> BenchRun:
-        self.capture.release()
         self.run.peak_rss = peak_rss_bytes()
         return self.run
 

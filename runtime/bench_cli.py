@@ -230,13 +230,8 @@ def _nano_result(lane: BenchLane, run: BenchRun, night: Dataset | None, results:
     summary.pop("rss_mb", None)  # the process's memory, already in the models' columns
     result = {"name": nano_label(), "model": "cv2.TrackerNano", **summary}
     if night is not None:
-        tracker = lane.tracker
-        before = cv2.getNumThreads()
-        cv2.setNumThreads(lane.cv2_threads)
-        try:
-            run_tracker(tracker, "nano", night, results, progress=False)
-        finally:
-            cv2.setNumThreads(before)
+        with lane.opencv_threads():
+            run_tracker(lane.tracker, "nano", night, results, progress=False)
         scores = score_folder(night, tracker_folder(results, night.name, "nano"), "nano").overall
         result["night"] = {"success": scores.success, "precision": scores.precision, "sequences": scores.sequences}
     return result
