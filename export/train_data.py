@@ -123,13 +123,15 @@ class SceneSource:
     photos, after `dadiff-eval data fetch`)."""
 
     def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4,
-                 source: str = "skimage") -> None:
+                 source: str = "skimage", companions: float = 0.0) -> None:
         from dadiff.runtime.evaluation.library_scenes import open_scene_library
         from dadiff.runtime.evaluation.photos import load_photos
         from dadiff.runtime.evaluation.scenes import SceneError
 
         if source not in ("skimage", "library"):
             raise ValueError(f"unknown scene source {source!r}; expected skimage or library")
+        if not 0 <= companions <= 1 or (companions and source != "library"):
+            raise ValueError(f"companions is {companions}; expected a share 0-1 of library scenes")
         try:
             self.photos = load_photos(split) if source == "skimage" else None
             self.library = open_scene_library() if source == "library" else None
@@ -138,6 +140,7 @@ class SceneSource:
         self.split = split
         self.max_gap = max_gap
         self.pairs_per_scene = pairs_per_scene  # building a scene costs ~10x rendering one of its frames
+        self.companions = companions  # share of library scenes with a look-alike walking beside the target
         self._scene, self._uses = None, 0
 
     def _new_scene(self, rng: np.random.Generator):
@@ -145,7 +148,8 @@ class SceneSource:
         from dadiff.runtime.evaluation.scene import Scene
 
         if self.library is not None:
-            return random_library_scene(rng, self.library, self.split, frames=self.max_gap + 1)
+            companion = self.companions > 0 and rng.random() < self.companions  # no draw at 0: same stream
+            return random_library_scene(rng, self.library, self.split, frames=self.max_gap + 1, companion=companion)
         return Scene.random(rng, self.photos, frames=self.max_gap + 1)
 
     def sample(self, rng: np.random.Generator):
@@ -255,7 +259,7 @@ def make_day_source(spec: dict):
     kind = spec.get("kind")
     if kind == "scenes":
         return SceneSource(spec.get("split", "train"), pairs_per_scene=int(spec.get("pairs", 4)),
-                           source=spec.get("source", "skimage"))
+                           source=spec.get("source", "skimage"), companions=float(spec.get("companions", 0.0)))
     if kind in ("got10k", "otb", "sequences"):
         return SequenceSource(spec["root"])
     if kind == "images":

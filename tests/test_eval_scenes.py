@@ -366,6 +366,25 @@ def test_library_scenes_change_scale_strongly_and_mix_object_sizes(library):
     assert max(sides) <= 360
 
 
+def test_a_companion_walks_beside_the_target_in_every_frame(library):
+    copies = 0
+    for seed in range(12):
+        scene = random_library_scene(np.random.default_rng(seed), library, "train", frames=60, companion=True)
+        companion, target = scene.distractor, scene.target
+        assert companion is not None
+        gap = np.hypot(*(companion.centre - target.centre).T) / target.size
+        assert gap.min() >= 0.9 - 1e-9 and gap.max() <= 2.5 + 1e-9, seed
+        assert np.all(companion.size / target.size > 0.5) and np.all(companion.size / target.size < 2.0)
+        own, other = target.pyramid[0], companion.pyramid[0]
+        copies += own.shape == other.shape and (np.array_equal(own, other) or np.array_equal(own[:, ::-1], other))
+    assert 0 < copies < 12  # half of them a copy of the target's own cut-out
+    # the evaluation's scenes are unchanged by the option's existence
+    plain = random_library_scene(np.random.default_rng(3), library, "train", frames=60)
+    again = random_library_scene(np.random.default_rng(3), library, "train", frames=60, companion=False)
+    np.testing.assert_array_equal(plain.boxes, again.boxes)
+    assert (plain.distractor is None) == (again.distractor is None)
+
+
 def test_library_scenes_keep_train_and_test_apart(monkeypatch):
     for split in ("train", "test"):
         monkeypatch.setattr(library_scenes, "_LIBRARY_CACHE", {})  # nothing loaded by another test

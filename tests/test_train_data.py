@@ -125,3 +125,13 @@ def test_path_lamps_stand_beside_the_target_and_saturate():
     a = source.night_pair(frame, frame, rng_a, "real")
     b = source.night_pair(frame, frame, rng_b, "real", 0.0)
     assert all(np.array_equal(u, v) for u, v in zip(a, b, strict=True))
+
+
+@pytest.mark.parametrize("spec", [{"companions": 1.5, "source": "library"}, {"companions": 0.5}])
+def test_companions_are_a_share_of_library_scenes(spec):
+    """Look-alikes beside the target (`companions`) come from the real-photo library's scenes only, as a share;
+    anything else is refused by name before a library is opened."""
+    from dadiff.export.train_data import make_day_source
+
+    with pytest.raises(ValueError, match="companions is"):
+        make_day_source({"kind": "scenes", "split": "train", **spec})

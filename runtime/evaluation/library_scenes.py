@@ -236,6 +236,19 @@ def _cutout_layer(
     return _CutoutLayer(cutout, centre, size, angle)
 
 
+def _companion_layer(rng: np.random.Generator, cutout: _Cutout, target: Layer, height: int, n: int) -> _CutoutLayer:
+    """A cut-out that walks beside the target, 0.9-2 of its long side from it in a slowly turning direction,
+    as the next person of a group or the next car of a queue does: the look-alike a tracker jumps to."""
+    if rng.random() < 0.5:
+        cutout = cutout.flipped()
+    heading = rng.uniform(0, 2 * np.pi) + wave(rng, n, 0.6, (60, 200))
+    reach = target.size * np.clip(rng.uniform(0.9, 2.0) + wave(rng, n, 0.3, (60, 200)), 0.9, 2.5)
+    centre = target.centre + reach[:, None] * np.stack([np.cos(heading), np.sin(heading)], 1)
+    size = np.clip(target.size * rng.uniform(0.7, 1.3) * np.exp(wave(rng, n, 0.15, (60, 200), 1)), 5, 0.9 * height)
+    angle = rng.uniform(-0.15, 0.15) + wave(rng, n, rng.uniform(0, 0.1), (60, 200), 1)
+    return _CutoutLayer(cutout, centre, size, angle)
+
+
 def _usable(images: list, role: str, rng: np.random.Generator):
     """The library's images of one role, prepared, in a random order, skipping unusable ones (unreadable, no
     opaque part)."""
@@ -265,11 +278,13 @@ def random_library_scene(
     split: str = "train",
     frames: int = 120,
     size: tuple[int, int] = (640, 360),
+    companion: bool = False,
 ) -> Scene:
     """A random scene over the real-photo library: one of its backgrounds of `split` seen by a drone camera,
     a cut-out target of `split` (alpha-pasted, exact box), sometimes an occluder and a look-alike distractor
-    (another cut-out of `split`). `library`: what `library.open_library()` returns. Deterministic from the
-    generator state and the library's contents."""
+    (another cut-out of `split`). `companion`: the distractor always, walking beside the target, half the
+    time a copy of the target's own cut-out (training; the evaluation's scenes leave it off). `library`:
+    what `library.open_library()` returns. Deterministic from the generator state and the library's contents."""
     check_split(split)
     width, height = frame_size(size, frames)
     backgrounds, targets = library_images(library, split)
@@ -279,10 +294,16 @@ def random_library_scene(
     background = prepare_background(rng, photo, diagonal, diagonal)
     cameras, zoom = drone_path(rng, background.shape, width, height, frames)
     cutouts = _usable(targets, "target", rng)
-    target = _cutout_layer(rng, next(cutouts), _walk_sizes(rng, zoom, height, frames), width, height, frames)
+    target_cutout = next(cutouts)
+    target = _cutout_layer(rng, target_cutout, _walk_sizes(rng, zoom, height, frames), width, height, frames)
     occluder = random_occluder(rng, next(photos, photo), target, frames)  # textured by another background
     distractor = None
-    look_alike = next(cutouts, None) if len(targets) > 1 and rng.random() < 0.3 else None
+    if companion:
+        look_alike = target_cutout if rng.random() < 0.5 else next(cutouts, target_cutout)
+        distractor = _companion_layer(rng, look_alike, target, height, frames)
+        look_alike = None
+    else:
+        look_alike = next(cutouts, None) if len(targets) > 1 and rng.random() < 0.3 else None
     if look_alike is not None:
         sizes = target.size * rng.uniform(0.7, 1.3) * np.exp(wave(rng, frames, 0.2, (60, 200), 1))
         distractor = _cutout_layer(rng, look_alike, np.clip(sizes, 5, 0.9 * height), width, height, frames)
