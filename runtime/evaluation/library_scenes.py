@@ -237,7 +237,7 @@ def _cutout_layer(
 
 
 def _companion_layer(rng: np.random.Generator, cutout: _Cutout, target: Layer, height: int, n: int) -> _CutoutLayer:
-    """A cut-out that walks beside the target, 0.9-2 of its long side from it in a slowly turning direction,
+    """A cut-out that walks beside the target, 0.9-2.5 of its long side from it in a slowly turning direction,
     as the next person of a group or the next car of a queue does: the look-alike a tracker jumps to."""
     if rng.random() < 0.5:
         cutout = cutout.flipped()
@@ -301,12 +301,11 @@ def random_library_scene(
     if companion:
         look_alike = target_cutout if rng.random() < 0.5 else next(cutouts, target_cutout)
         distractor = _companion_layer(rng, look_alike, target, height, frames)
-        look_alike = None
     else:
         look_alike = next(cutouts, None) if len(targets) > 1 and rng.random() < 0.3 else None
-    if look_alike is not None:
-        sizes = target.size * rng.uniform(0.7, 1.3) * np.exp(wave(rng, frames, 0.2, (60, 200), 1))
-        distractor = _cutout_layer(rng, look_alike, np.clip(sizes, 5, 0.9 * height), width, height, frames)
+        if look_alike is not None:
+            sizes = target.size * rng.uniform(0.7, 1.3) * np.exp(wave(rng, frames, 0.2, (60, 200), 1))
+            distractor = _cutout_layer(rng, look_alike, np.clip(sizes, 5, 0.9 * height), width, height, frames)
     brightness, lights = random_lighting(rng, background, zoom, frames)
     return Scene((width, height), background, cameras, target, occluder, distractor, brightness, lights)
 
