@@ -67,6 +67,7 @@ class TrainConfig:
     disc_lr: float = 0.005                # paper: discriminator base lr 0.005, poly decay power 0.8
     disc_poly_power: float = 0.8
     lambda_trc: float = 1.0
+    lambda_loc: float = 1.0               # the box (IoU) loss within L_trc, day and night, relative to cls
     lambda_adv: float = 0.1
     lambda_align: float = 1.0
     adversarial: bool = True              # ablation switches (Table IV)
@@ -299,10 +300,10 @@ class Trainer:
                          *night_inputs)
         l_align, day_states, night_states = out["align"], out["day_states"], out["night_states"]
         cls, loc = out["cls_map"], out["loc_map"]
-        total = cfg.lambda_trc * (out["cls"] + out["loc"])
+        total = cfg.lambda_trc * (out["cls"] + cfg.lambda_loc * out["loc"])
         logs = {"cls": out["cls"].item(), "loc": out["loc"].item()}
         if cfg.lambda_night_trc and bool(batch["paired"].all()):
-            total = total + cfg.lambda_night_trc * (out["night_cls"] + out["night_loc"])
+            total = total + cfg.lambda_night_trc * (out["night_cls"] + cfg.lambda_loc * out["night_loc"])
             logs |= {"night_cls": out["night_cls"].item(), "night_loc": out["night_loc"].item()}
         if self.teacher is not None:
             t_feat, t_prob, t_loc = (t.to(self.device) for t in self.teacher(cpu_batch["z"], cpu_batch["x"],

@@ -21,7 +21,8 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "checkpoint_every": (1, True), "freeze_backbone_blocks": (0, True), "lr": (0, False),
     "backbone_lr_mult": (0, True), "dadiff_lr_mult": (0, True), "weight_decay": (0, True),
     "disc_lr": (0, False), "disc_poly_power": (0, True),
-    "lambda_trc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True), "grad_clip": (0, False),
+    "lambda_trc": (0, True), "lambda_loc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True),
+    "grad_clip": (0, False),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
     "lambda_night_distill": (0, True), "night_path_lamps": (0, True),
 }

@@ -41,6 +41,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("disc_lr", "0.005", "discriminator learning rate (paper: 0.005)"),
     ("disc_poly_power", "0.8", "discriminator poly decay power"),
     ("lambda_trc", "1.0", "tracking loss weight"),
+    ("lambda_loc", "1.0", "box (IoU) loss weight within the tracking loss, day and night"),
     ("lambda_adv", "0.1", "adversarial loss weight"),
     ("lambda_align", "1.0", "alignment loss weight"),
     ("adversarial", "true", "ablation switch: the adversarial loss"),

@@ -159,6 +159,15 @@ def test_night_tracking_loss_on_rendered_night_pairs(tmp_path, image_folder):
     assert "night_cls" not in plain.step_on(batch)
 
 
+def test_box_loss_weight_applies_by_day_and_at_night(tmp_path, image_folder):
+    """lambda_loc weighs the IoU loss against the classification loss in both halves of L_trc."""
+    cfg = config(tmp_path, image_folder, stage="baseline", night=None, lambda_night_trc=1.0, lambda_loc=3.0)
+    trainer = Trainer(cfg)
+    logs = trainer.step_on(next(iter(data_loader(cfg, trainer.net, 0))))
+    expected = logs["cls"] + 3.0 * logs["loc"] + logs["night_cls"] + 3.0 * logs["night_loc"]
+    assert logs["total"] == pytest.approx(expected, rel=1e-5)
+
+
 def test_teacher_needs_a_stride_16_family(tmp_path, image_folder):
     cfg = config(tmp_path, image_folder, stage="baseline", teacher=str(tmp_path))
     with pytest.raises(ValueError, match="stride-16"):
