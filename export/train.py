@@ -73,6 +73,7 @@ class TrainConfig:
     adversarial: bool = True              # ablation switches (Table IV)
     align_loss: bool = True
     align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output
+    search_scale: float = 0.18            # search crops rescaled by exp(U(-s, s)) around the target (SiamBAN 0.18)
     loc_region: str = "ellipse"           # box regression at BAN's positive points, or "box": every point inside
     grad_clip: float = 10.0
     checkpoint_every: int = 100
@@ -408,7 +409,7 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0
     is seeded by the step it starts at; step 0 is the stream of a run that was never interrupted)."""
     tr = net.cfg.tracker
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
-                      score_size=tr.score_size, context=tr.context_amount)
+                      score_size=tr.score_size, context=tr.context_amount, search_scale=cfg.search_scale)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
                         with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step,
                         night_pairs=cfg.night_pairs, night_path_lamps=cfg.night_path_lamps)

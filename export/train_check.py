@@ -22,11 +22,11 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "backbone_lr_mult": (0, True), "dadiff_lr_mult": (0, True), "weight_decay": (0, True),
     "disc_lr": (0, False), "disc_poly_power": (0, True),
     "lambda_trc": (0, True), "lambda_loc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True),
-    "grad_clip": (0, False),
+    "grad_clip": (0, False), "search_scale": (0, True),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
     "lambda_night_distill": (0, True), "night_path_lamps": (0, True),
 }
-MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0}  # inclusive
+MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0, "search_scale": 1.0}  # inclusive
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}

@@ -168,6 +168,27 @@ def test_box_loss_weight_applies_by_day_and_at_night(tmp_path, image_folder):
     assert logs["total"] == pytest.approx(expected, rel=1e-5)
 
 
+def test_search_scale_sets_how_far_the_crop_strays_from_the_target_size(tmp_path, image_folder):
+    """At 0 the target always fills the search crop as the tracker expects (its context square is the
+    exemplar side); a wide jitter spreads its size, so the crop no longer tells the network the answer."""
+    from dadiff.export.train_data import context_side
+
+    def target_sides(search_scale: float) -> np.ndarray:
+        cfg = config(tmp_path, image_folder, stage="baseline", night=None, batch_size=8, search_scale=search_scale)
+        batch = next(iter(data_loader(cfg, Trainer(cfg).net, 0)))
+        sides = []
+        for label, loc in zip(batch["label"], batch["loc"], strict=True):
+            i, j = (label == 1).nonzero()[0]
+            left, top, right, bottom = loc[:, i, j].tolist()
+            sides.append(context_side(left + right, top + bottom, 0.5))
+        return np.array(sides)
+
+    exemplar = 127
+    assert np.allclose(target_sides(0.0), exemplar, rtol=0.01)
+    wide = target_sides(0.5)
+    assert wide.max() / wide.min() > 1.1 and np.all(np.abs(np.log(wide / exemplar)) <= 0.5 + 0.01)
+
+
 def test_teacher_needs_a_stride_16_family(tmp_path, image_folder):
     cfg = config(tmp_path, image_folder, stage="baseline", teacher=str(tmp_path))
     with pytest.raises(ValueError, match="stride-16"):
