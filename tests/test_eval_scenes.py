@@ -145,16 +145,21 @@ def test_write_benchmark_is_read_back_as_an_otb_dataset(tmp_path):
 # benchmark in README (`dadiff-eval generate --seed 2026`) must stay reproducible bit for bit on a machine.
 # OpenCV picks its SIMD kernels at run time, and its AVX-512 and AVX2 kernels round some resize / warp steps
 # differently, so the frames' bytes differ between CPUs with and without AVX-512 (cv2.setUseOptimized(False)
-# changes them too; numpy's dispatch does not); the boxes do not. The frames are recorded for both.
+# changes them too; numpy's dispatch does not); the boxes do not. The frames are recorded for both. The night
+# frame also differs between AVX-512 CPUs (an AMD EPYC with avx512_bf16 / vp2intersect gave another byte
+# stream than the first AVX-512 machines, with the same OpenCV, numpy and day frame): every variant seen is kept.
 CPUINFO = Path("/proc/cpuinfo")
 OPENCV_AVX512 = "avx512f" in cpu_flags(CPUINFO.read_text() if CPUINFO.exists() else "")
 SEED_2026_FRAME_2 = {
     "day": {True: "f59bf1c06616ed618452e52ef85cdbd953ccc4cd08393c15e69228cc9b6c5ef9",
             False: "276ee0b452a9730fe194f20deab46e72a96cec1c7e6f3f53f2796ff31cfaedae"}[OPENCV_AVX512],
-    "night": {True: "eab4bfe0f347f5a3d4fe80c2d40ec4d77ae99ecf4a70daeea8358f1189957967",
-              False: "11c8f9d70062e80023f8404e413c560c5fb7f5ed61d3d73800590ebb772fda46"}[OPENCV_AVX512],
     "boxes": "c3d564b7289d639c82f95fcf754417f244941d0631cf4f54734bade0e62e8b64",
 }
+SEED_2026_NIGHT_FRAME_2 = {
+    True: ("eab4bfe0f347f5a3d4fe80c2d40ec4d77ae99ecf4a70daeea8358f1189957967",
+           "f84b05d23ecaeaa9b9b157002d3bb54c9c0c0eb195de43077e68eee094fa46b5"),
+    False: ("11c8f9d70062e80023f8404e413c560c5fb7f5ed61d3d73800590ebb772fda46",),
+}[OPENCV_AVX512]
 CLASSIC_NIGHT = {True: "343e3ee18753c8575faacbe08d2a8bb03d850179b5181fef717bf0618ab481d1",
                  False: "33adae34c5f0dd22b587548f915bed36b701c395ef2347c72278b044681f3be4"}[OPENCV_AVX512]
 
@@ -165,13 +170,15 @@ def _sha(array: np.ndarray) -> str:
 
 def test_seeded_sequences_are_unchanged_by_default():
     seq = make_sequence(2026, frames=3)
-    got = {"day": _sha(seq.day[2]), "night": _sha(seq.night[2]), "boxes": _sha(seq.boxes)}
+    got = {"day": _sha(seq.day[2]), "boxes": _sha(seq.boxes)}
     assert got == SEED_2026_FRAME_2
+    night = _sha(seq.night[2])
+    assert night in SEED_2026_NIGHT_FRAME_2
     same = make_sequence(2026, frames=3, source="skimage", night="classic")
-    assert _sha(same.night[2]) == SEED_2026_FRAME_2["night"]
+    assert _sha(same.night[2]) == night
     real = make_sequence(2026, frames=3, night="real")
     assert _sha(real.day[2]) == SEED_2026_FRAME_2["day"] and np.array_equal(real.boxes, seq.boxes)
-    assert _sha(real.night[2]) != SEED_2026_FRAME_2["night"]
+    assert _sha(real.night[2]) != night
 
 
 def test_classic_render_night_is_the_old_one():
