@@ -73,7 +73,7 @@ class TrainConfig:
     adversarial: bool = True              # ablation switches (Table IV)
     align_loss: bool = True
     align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output
-    search_scale: float = 0.18            # search crops rescaled by exp(U(-s, s)) around the target (SiamBAN 0.18)
+    search_scale: float = CropConfig.search_scale  # search crops rescaled by exp(U(-s, s)) around the target
     loc_region: str = "ellipse"           # box regression at BAN's positive points, or "box": every point inside
     grad_clip: float = 10.0
     checkpoint_every: int = 100

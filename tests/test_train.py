@@ -171,7 +171,7 @@ def test_box_loss_weight_applies_by_day_and_at_night(tmp_path, image_folder):
 def test_search_scale_sets_how_far_the_crop_strays_from_the_target_size(tmp_path, image_folder):
     """At 0 the target always fills the search crop as the tracker expects (its context square is the
     exemplar side); a wide jitter spreads its size, so the crop no longer tells the network the answer."""
-    from dadiff.export.train_data import context_side
+    from dadiff.export.train_data import CropConfig, context_side
 
     def target_sides(search_scale: float) -> np.ndarray:
         cfg = config(tmp_path, image_folder, stage="baseline", night=None, batch_size=8, search_scale=search_scale)
@@ -180,10 +180,10 @@ def test_search_scale_sets_how_far_the_crop_strays_from_the_target_size(tmp_path
         for label, loc in zip(batch["label"], batch["loc"], strict=True):
             i, j = (label == 1).nonzero()[0]
             left, top, right, bottom = loc[:, i, j].tolist()
-            sides.append(context_side(left + right, top + bottom, 0.5))
+            sides.append(context_side(left + right, top + bottom, CropConfig.context))
         return np.array(sides)
 
-    exemplar = 127
+    exemplar = CropConfig.exemplar
     assert np.allclose(target_sides(0.0), exemplar, rtol=0.01)
     wide = target_sides(0.5)
     assert wide.max() / wide.min() > 1.1 and np.all(np.abs(np.log(wide / exemplar)) <= 0.5 + 0.01)
