@@ -77,6 +77,7 @@ class TrainConfig:
     loc_region: str = "ellipse"           # box regression at BAN's positive points, or "box": every point inside
     grad_clip: float = 10.0
     checkpoint_every: int = 100
+    keep_checkpoints: bool = False        # also keep each periodic checkpoint as OUT/step-NNNNNN.pt
     seed: int = 0
     teacher: str | None = None            # NanoTrack v3 ONNX folder: distil its responses and search features
     lambda_distill: float = 1.0           # teacher cls + loc responses (stride-16 families)
@@ -473,6 +474,8 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
                     bar.set_postfix({k: f"{v:.3f}" for k, v in logs.items() if k != "sec_per_step"})
             if trainer.step % cfg.checkpoint_every == 0:
                 trainer.save()
+                if cfg.keep_checkpoints:  # states to choose from by held-out tracking, not by the loss
+                    trainer.save(trainer.out / f"step-{trainer.step:06d}.pt")
     finally:
         trainer.save()
         if rank == 0:

@@ -51,6 +51,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("loc_region", '"ellipse"', 'box regressed at BAN\'s positive "ellipse" or at every point in the "box"'),
     ("grad_clip", "10.0", "gradient norm clip (> 0)"),
     ("checkpoint_every", "100", "steps between last.pt saves (>= 1)"),
+    ("keep_checkpoints", "false", "also keep each of those saves as step-NNNNNN.pt (to choose one by tracking)"),
     ("seed", "0", "random seed"),
     ("teacher", "(none)", "NanoTrack v3 ONNX folder to distil from (stride-16 families)"),
     ("lambda_distill", "1.0", "teacher response distillation weight"),

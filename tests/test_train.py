@@ -105,6 +105,19 @@ def test_resume_restores_step_and_optimiser(tmp_path, image_folder):
     assert len(rows) == 1 + 4  # header + one row per step across both runs
 
 
+def test_keep_checkpoints_leaves_one_state_per_checkpoint_step(tmp_path, image_folder):
+    from dadiff.export.checkpoint import read_checkpoint_file
+
+    cfg = config(tmp_path, image_folder, steps=4, checkpoint_every=2, keep_checkpoints=True)
+    run(cfg, progress=False)
+    kept = sorted(p.name for p in Path(cfg.out).glob("step-*.pt"))
+    assert kept == ["step-000002.pt", "step-000004.pt"]
+    assert read_checkpoint_file(Path(cfg.out) / "step-000002.pt")["step"] == 2
+    plain = config(tmp_path / "plain", image_folder, steps=2, checkpoint_every=1)
+    run(plain, progress=False)
+    assert not list(Path(plain.out).glob("step-*.pt"))
+
+
 def test_checkpoint_exports_with_parity(tmp_path, image_folder):
     from dadiff.export.checkpoint import load_checkpoint
     from dadiff.export.onnx_export import export_model
