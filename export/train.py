@@ -87,6 +87,7 @@ class TrainConfig:
     night_styles: list[str] = field(default_factory=lambda: ["real"])  # rendered night: one style per pair
     night_pairs: str = "frame"            # "scene": one night camera and fixed lights over a scene's pair
     night_path_lamps: float = 0.0         # share of scene-lit night pairs given lamp heads beside the target
+    negative_pairs: float = 0.0           # share of pairs whose search crop holds another object (release: 0.2)
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
@@ -413,7 +414,8 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0
                       score_size=tr.score_size, context=tr.context_amount, search_scale=cfg.search_scale)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
                         with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step,
-                        night_pairs=cfg.night_pairs, night_path_lamps=cfg.night_path_lamps)
+                        night_pairs=cfg.night_pairs, night_path_lamps=cfg.night_path_lamps,
+                        negative_pairs=cfg.negative_pairs)
     return DataLoader(stream, batch_size=cfg.batch_size, num_workers=cfg.workers,
                       persistent_workers=cfg.workers > 0)
 

@@ -24,9 +24,9 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "lambda_trc": (0, True), "lambda_loc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True),
     "grad_clip": (0, False), "search_scale": (0, True),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
-    "lambda_night_distill": (0, True), "night_path_lamps": (0, True),
+    "lambda_night_distill": (0, True), "night_path_lamps": (0, True), "negative_pairs": (0, True),
 }
-MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0, "search_scale": 1.0}  # inclusive
+MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0, "negative_pairs": 1.0, "search_scale": 1.0}  # inclusive
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}

@@ -162,6 +162,12 @@ class SceneSource:
         self._pair = (scene, int(i), int(j))
         return fi, np.asarray(bi, np.float32), fj, np.asarray(bj, np.float32)
 
+    def other(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """A frame and box of another scene (another target), for a negative pair; later pairs come from it."""
+        self._scene = None
+        _, _, frame, box = self.sample(rng)
+        return frame, box
+
     def night_pair(self, fi: np.ndarray, fj: np.ndarray, rng: np.random.Generator,
                    style: str, path_lamps: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The last sampled pair at night as the evaluation's sequences are: one night camera over the scene
@@ -208,6 +214,10 @@ class SequenceSource:
             raise ValueError(f"unreadable frame in {frames[0].parent}")
         return fa, boxes[valid[a]], fb, boxes[b]
 
+    def other(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """A frame and box from another draw (usually another sequence), for a negative pair."""
+        return self.sample(rng)[2:]
+
 
 class ImageFolderSource:
     """Both crops cut from one still image around a random region (shift/scale come from the crop jitter)."""
@@ -225,6 +235,10 @@ class ImageFolderSource:
         bw, bh = rng.uniform(0.05, 0.3) * w, rng.uniform(0.05, 0.3) * h
         box = np.array([rng.uniform(0, w - bw), rng.uniform(0, h - bh), bw, bh], np.float32)
         return img, box, img, box
+
+    def other(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """A region of another draw, for a negative pair."""
+        return self.sample(rng)[2:]
 
 
 # ---- night sources: each yields one night image the size of a search crop or larger ---------------------
@@ -272,8 +286,9 @@ class PairStream(IterableDataset):
 
     def __init__(self, day_sources: list, night: str | Path | None, cfg: CropConfig, seed: int, rank: int = 0,
                  with_night: bool = True, night_styles: Sequence[str] = ("real",), start_step: int = 0,
-                 night_pairs: str = "frame", night_path_lamps: float = 0.0) -> None:
+                 night_pairs: str = "frame", night_path_lamps: float = 0.0, negative_pairs: float = 0.0) -> None:
         super().__init__()
+        self.negative_pairs = negative_pairs  # share of pairs whose search crop holds another object
         self.night_pairs = night_pairs  # "scene": one night over a generated scene's pair; "frame": one per frame
         self.night_path_lamps = night_path_lamps  # share of scene-lit pairs with lamps beside the target
         self.day_sources, self.cfg, self.seed, self.rank = day_sources, cfg, seed, rank
@@ -307,16 +322,21 @@ class PairStream(IterableDataset):
                 fz, bz, fx, bx = source.sample(rng)
             except ValueError:
                 continue
+            negative = self.negative_pairs > 0 and rng.random() < self.negative_pairs  # no draw at 0
+            if negative:
+                fx, bx = source.other(rng)
             grey, blur = rng.random() < cfg.grey, rng.random() < cfg.blur
             wz = jittered_window(bz, cfg.exemplar, cfg, cfg.template_shift, cfg.template_scale, rng)
             wx = jittered_window(bx, cfg.instance, cfg, cfg.search_shift, cfg.search_scale, rng)
             z, x = wz.cut(fz), wx.cut(fx)
             label, loc = ban_targets(wx.rel, cfg)
+            if negative:  # the other object is not the target: negative where its positives would be
+                label = np.where(label == 1, 0, -1)
             if not self.with_night:
                 zn, xn = z[:1, :1], x[:1, :1]  # placeholders, unused
             elif self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
                 style = self._night_style(rng)
-                if self.night_pairs == "scene" and hasattr(source, "night_pair"):
+                if self.night_pairs == "scene" and hasattr(source, "night_pair") and not negative:
                     nz, nx = source.night_pair(fz, fx, rng, style, self.night_path_lamps)
                 else:
                     nz, nx = self._night(fz, rng, style), self._night(fx, rng, style)

@@ -117,6 +117,8 @@ BAD_TRAIN = [
     ("[train]\nlr = 0", "'lr' is 0; expected > 0"),
     ('family = "big"', "'family' is 'big'"),
     ("adversarial = 1", "'adversarial' is 1; expected true or false"),
+    ("negative_pairs = 1.2", "'negative_pairs' is 1.2; expected <= 1"),
+    ("negative_pairs = -0.1", "'negative_pairs' is -0.1; expected >= 0"),
 ]
 
 

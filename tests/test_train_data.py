@@ -99,6 +99,32 @@ def test_pair_stream_renders_scene_pairs_through_the_source_only_when_asked(monk
     assert calls == [("real", 0.0), ("real", 0.5)]
 
 
+def test_negative_pairs_put_another_scenes_object_in_the_search_crop(monkeypatch):
+    """negative_pairs: the search crop is cut around another scene's target; the points where a target would
+    be positive are negative and nothing else is labelled; at 0 no pair is negative and the stream is as before."""
+    calls = []
+    other = SceneSource.other
+
+    def counted(self, rng):
+        calls.append(1)
+        return other(self, rng)
+
+    monkeypatch.setattr(SceneSource, "other", counted)
+    cfg = CropConfig()
+    plain = PairStream([SceneSource("train")], None, cfg, seed=0, night_pairs="scene")
+    assert (next(iter(plain))["label"] == 1).any()
+    assert calls == []
+    stream = iter(PairStream([SceneSource("train")], None, cfg, seed=0, night_pairs="scene", negative_pairs=1.0))
+    for _ in range(3):
+        sample = next(stream)
+        label = sample["label"].numpy()
+        assert not (label == 1).any() and (label == 0).any()
+        assert set(np.unique(label)) == {-1, 0}
+        assert sample["x_night"].shape == sample["x"].shape  # its night is rendered too (one night per frame)
+    assert len(calls) == 3
+    assert (label == 0).sum() < label.size / 4  # only the other object's central points, not the background
+
+
 def test_path_lamps_stand_beside_the_target_and_saturate():
     """night_path_lamps: each added lamp head is fixed on the ground 0.7-2.5 target sizes from the target in the
     chosen frame, saturates the picture there, and with the share at 0 nothing is drawn (streams stay as they were)."""
