@@ -3,6 +3,7 @@
 dadiff-eval run --model M --dataset D --results R [--attributes]
 dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R
 dadiff-eval score --dataset D [--json] RESULT_DIR...
+dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
@@ -22,6 +23,7 @@ from pathlib import Path
 from ..cli import positive_int
 from ..errors import InputError, ModelError, OneLineParser
 from ..sources import quiet_opencv
+from .anatomy import anatomy, format_anatomy, grey_bins
 from .datasets import Dataset, DatasetError, load_dataset
 from .evaluate import (
     EvalError,
@@ -29,6 +31,7 @@ from .evaluate import (
     RuntimeTracker,
     TrackerScores,
     TrackerUnavailable,
+    read_results,
     result_folders,
     run_tracker,
     score_folder,
@@ -59,12 +62,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog=PROG, description="One-pass evaluation of single-object trackers.",
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,generate,data,tune}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,anatomy,generate,data,tune}")
 
-    common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
-    common.add_argument("--sequences", action="append", metavar="GLOB",
-                        help="only sequences matching this pattern (repeat for several)")
+    selection = argparse.ArgumentParser(add_help=False)
+    selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
+    selection.add_argument("--sequences", action="append", metavar="GLOB",
+                           help="only sequences matching this pattern (repeat for several)")
+    common = argparse.ArgumentParser(add_help=False, parents=[selection])
     common.add_argument("--attributes", action="store_true", help="also print (and plot) scores per attribute")
 
     run = sub.add_parser("run", parents=[common], help="run a tracker over a dataset, then score and plot")
@@ -93,6 +97,10 @@ def build_parser() -> argparse.ArgumentParser:
     score.add_argument("--against", metavar="TRACKER",
                        help="also print each tracker's success minus this one's, with a 95%% bootstrap interval "
                             "over the sequences")
+
+    anat = sub.add_parser("anatomy", parents=[selection],
+                          help="where trackers lose frames: centred share, IoU there, by the target's grey level")
+    anat.add_argument("dirs", nargs="+", type=Path, metavar="DIR", help="tracker result folders, or their parent")
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
     gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
@@ -295,6 +303,17 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_anatomy(args: argparse.Namespace) -> int:
+    dataset = load_dataset(args.dataset).select(args.sequences)
+    folders = result_folders(args.dirs, dataset)
+    gts = [seq.boxes for seq in dataset.sequences]
+    results = [(name, read_results(dataset, folder)) for name, folder in folders]  # all checked before reading frames
+    bins = grey_bins(dataset)
+    rows = [anatomy(name, gts, [boxes[seq.name] for seq in dataset.sequences], bins) for name, boxes in results]
+    print(format_anatomy(dataset, rows, bins))
+    return 0
+
+
 def cmd_generate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     root = write_benchmark(
@@ -411,8 +430,8 @@ def cmd_data(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "score": cmd_score, "generate": cmd_generate, "data": cmd_data,
-                "tune": cmd_tune}
+    commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "generate": cmd_generate,
+                "data": cmd_data, "tune": cmd_tune}
     try:
         with quiet_opencv():
             return commands[args.command](args)

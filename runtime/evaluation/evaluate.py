@@ -292,8 +292,8 @@ class TrackerScores:
     sequences: dict[str, SequenceCurves]
 
 
-def score_folder(dataset: Dataset, folder: Path, name: str | None = None) -> TrackerScores:
-    """Score the result files in `folder` against every sequence of `dataset`."""
+def read_results(dataset: Dataset, folder: Path) -> dict[str, np.ndarray]:
+    """The boxes in `folder` for every sequence of `dataset`, each as many as its ground truth."""
     folder = Path(folder)
     missing = [s.name for s in dataset.sequences if not (folder / f"{s.name}.txt").is_file()]
     if missing:
@@ -301,13 +301,21 @@ def score_folder(dataset: Dataset, folder: Path, name: str | None = None) -> Tra
         raise EvalError(
             f"{folder}: no results for {len(missing)} of {len(dataset.sequences)} sequences of {dataset.name} ({shown})"
         )
-    curves = {}
+    results = {}
     for seq in dataset.sequences:
         path = folder / f"{seq.name}.txt"
         pred = read_result(path)
         if len(pred) != len(seq):
             raise EvalError(f"{path}: {len(pred)} boxes, but {seq.name} has {len(seq)} ground-truth frames")
-        curves[seq.name] = SequenceCurves.from_boxes(seq.boxes, pred)
+        results[seq.name] = pred
+    return results
+
+
+def score_folder(dataset: Dataset, folder: Path, name: str | None = None) -> TrackerScores:
+    """Score the result files in `folder` against every sequence of `dataset`."""
+    folder = Path(folder)
+    results = read_results(dataset, folder)
+    curves = {seq.name: SequenceCurves.from_boxes(seq.boxes, results[seq.name]) for seq in dataset.sequences}
     by_attribute = {
         attr: summarise(curves[s.name] for s in dataset.sequences if attr in s.attributes)
         for attr in dataset.attributes()

@@ -1,0 +1,89 @@
+"""Where a tracker loses its frames: how often it keeps the target's centre, how good its box is there, and
+both against how visible the target is (the mean grey level inside the true box).
+
+Success (the area under the IoU curve) mixes the two ways a tracker can fail: losing the target and drawing
+a poor box around it. At night they have different causes: most lost frames are frames where the target
+cannot be seen at all, which a better box cannot mend. Frames are pooled over the sequences; the first
+frame (the given box) is left out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .datasets import Dataset
+from .datasets import Sequence as Clip
+from .metrics import centre_errors, iou
+
+CENTRED = 0.5  # centre error below this share of the target's size sqrt(w * h)
+GREY_EDGES = (0, 8, 15, 30, 60, 256)  # bins of the mean grey level (0-255) inside the true box
+
+
+@dataclass(frozen=True)
+class Anatomy:
+    """One tracker's frames: `centred` share, mean IoU where centred, centred share per grey-level bin."""
+
+    name: str
+    centred: float
+    iou_centred: float
+    centred_by_grey: tuple[float, ...]  # NaN where a bin holds no frame
+
+
+def target_grey(clip: Clip) -> np.ndarray:
+    """Mean grey level inside the true box in each frame; NaN where the box holds no whole pixel."""
+    out = np.full(len(clip), np.nan)
+    for k, (path, (x, y, w, h)) in enumerate(zip(clip.frames, clip.boxes, strict=False)):
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            continue
+        x0, y0 = max(0, int(np.ceil(x))), max(0, int(np.ceil(y)))
+        x1, y1 = min(image.shape[1], int(x + w)), min(image.shape[0], int(y + h))
+        if x1 > x0 and y1 > y0:
+            out[k] = float(image[y0:y1, x0:x1].mean())
+    return out
+
+
+def centred_frames(gt: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """True where the predicted centre lies within CENTRED of the target's size from the true centre."""
+    size = np.sqrt(np.clip(gt[:, 2] * gt[:, 3], 1e-12, None))
+    error = centre_errors(gt, pred)
+    return (error >= 0) & (error < CENTRED * size)
+
+
+def grey_bin(grey: np.ndarray) -> np.ndarray:
+    """Bin index of each grey level in GREY_EDGES; -1 for NaN."""
+    index = np.digitize(grey, GREY_EDGES[1:-1])
+    return np.where(np.isnan(grey), -1, index)
+
+
+def anatomy(name: str, gts: Sequence[np.ndarray], preds: Sequence[np.ndarray], bins: Sequence[np.ndarray]) -> Anatomy:
+    """Pool frames 2..N of every sequence (`bins` from `grey_bin`, one array per sequence)."""
+    ok = np.concatenate([centred_frames(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
+    overlap = np.concatenate([iou(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
+    where = np.concatenate([b[1:] for b in bins])
+    by_grey = tuple(float(ok[where == k].mean()) if (where == k).any() else float("nan")
+                    for k in range(len(GREY_EDGES) - 1))
+    return Anatomy(name, float(ok.mean()), float(overlap[ok].mean()) if ok.any() else float("nan"), by_grey)
+
+
+def grey_bins(dataset: Dataset) -> list[np.ndarray]:
+    """`grey_bin` of every frame of every sequence (reads each frame once)."""
+    return [grey_bin(target_grey(clip)) for clip in dataset.sequences]
+
+
+def format_anatomy(dataset: Dataset, rows: Sequence[Anatomy], bins: Sequence[np.ndarray]) -> str:
+    where = np.concatenate([b[1:] for b in bins])
+    labels = [f"{lo}-{hi}" if hi < 256 else f">={lo}" for lo, hi in zip(GREY_EDGES[:-1], GREY_EDGES[1:], strict=True)]
+    shares = [f"{label} ({(where == k).mean():.0%})" for k, label in enumerate(labels)]
+    width = max(8, *(len(r.name) for r in rows))
+    lines = [f"{dataset.name}: {len(dataset.sequences)} sequences, {where.size} frames after the first",
+             f"centred: centre within {CENTRED:g} of the target's size; by the mean grey level in the true box:",
+             f"{'Tracker':<{width}}  centred  IoU there  " + "  ".join(f"{s:>{max(12, len(s))}}" for s in shares)]
+    for r in rows:
+        cells = "  ".join(f"{v:>{max(12, len(s))}.3f}" for v, s in zip(r.centred_by_grey, shares, strict=True))
+        lines.append(f"{r.name:<{width}}  {r.centred:7.3f}  {r.iou_centred:9.3f}  {cells}")
+    return "\n".join(lines)

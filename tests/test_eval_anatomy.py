@@ -1,0 +1,72 @@
+"""dadiff-eval anatomy: centred share, IoU where centred, and both by the target's grey level."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from dadiff.runtime.evaluation.anatomy import anatomy, grey_bins
+from dadiff.runtime.evaluation.cli import main
+from dadiff.runtime.evaluation.datasets import load_dataset
+
+BOX = (20, 10, 10, 10)
+FRAMES = 4
+
+
+def write_sequence(root: Path, name: str, background: int, target: int) -> None:
+    folder = root / name / "img"
+    folder.mkdir(parents=True)
+    x, y, w, h = BOX
+    for k in range(FRAMES):
+        image = np.full((48, 64), background, np.uint8)
+        image[y:y + h, x:x + w] = target
+        cv2.imwrite(str(folder / f"{k + 1:04d}.png"), image)
+    (root / name / "groundtruth_rect.txt").write_text(f"{x},{y},{w},{h}\n" * FRAMES)
+
+
+def write_results(folder: Path, shift: dict[str, int]) -> None:
+    folder.mkdir(parents=True)
+    x, y, w, h = BOX
+    for name, dx in shift.items():
+        rows = [f"{x},{y},{w},{h}"] + [f"{x + dx},{y},{w},{h}"] * (FRAMES - 1)
+        (folder / f"{name}.txt").write_text("\n".join(rows) + "\n")
+
+
+@pytest.fixture
+def bench(tmp_path: Path) -> Path:
+    write_sequence(tmp_path / "set", "lit", background=10, target=100)
+    write_sequence(tmp_path / "set", "dark", background=2, target=4)
+    write_results(tmp_path / "res" / "exact", {"lit": 0, "dark": 0})
+    write_results(tmp_path / "res" / "loses_dark", {"lit": 3, "dark": 30})  # 3 px: still centred, IoU 0.54
+    return tmp_path
+
+
+def test_centred_share_and_iou_by_the_targets_grey_level(bench):
+    dataset = load_dataset(bench / "set")
+    bins = grey_bins(dataset)
+    assert sorted(int(b[0]) for b in bins) == [0, 4]  # grey 4 in [0, 8), grey 100 in [60, 256)
+    gts = [s.boxes for s in dataset.sequences]
+    shifted = {s.name: s.boxes + [[3 if s.name == "lit" else 30, 0, 0, 0]] for s in dataset.sequences}
+    exact = anatomy("exact", gts, gts, bins)
+    loses = anatomy("loses_dark", gts, [shifted[s.name] for s in dataset.sequences], bins)
+    assert exact.centred == 1.0 and exact.iou_centred == pytest.approx(1.0)
+    assert loses.centred == 0.5  # the dark sequence's frames 2-4 are off by 3 target sizes
+    assert loses.iou_centred == pytest.approx(7 / 13)  # 7x10 overlap, 130 union
+    assert loses.centred_by_grey[0] == 0.0 and loses.centred_by_grey[4] == 1.0
+    assert all(math.isnan(v) for v in loses.centred_by_grey[1:4])
+
+
+def test_cli_prints_one_row_per_tracker_and_names_a_missing_result(bench, capsys):
+    assert main(["anatomy", "--dataset", str(bench / "set"), str(bench / "res")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    rows = {line.split()[0]: line.split()[1:] for line in out[3:]}
+    assert rows["exact"][:3] == ["1.000", "1.000", "1.000"]
+    assert rows["loses_dark"][:3] == ["0.500", "0.538", "0.000"]
+    (bench / "res" / "exact" / "dark.txt").unlink()
+    assert main(["anatomy", "--dataset", str(bench / "set"), str(bench / "res" / "exact")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no results for 1 of 2 sequences" in err[0] and "dark" in err[0]
