@@ -28,7 +28,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("night_styles", '["real"]', "night renderer styles, one drawn per pair: real, classic"),
     ("night_pairs", '"frame"', '"frame" (a night per frame) or "scene": one night over a generated scene\'s pair'),
     ("night_path_lamps", "0.0", 'share of "scene" night pairs given 1-3 lamp heads beside the target (0-1)'),
-    ("negative_pairs", "0.0", "share of pairs whose search crop holds another object, negative there (0-1; release 0.2)"),
+    ("negative_pairs", "0.0", "share of pairs whose search crop holds another object, negative there (0-1)"),
     ("steps", "1000", "training steps (>= 1)"),
     ("batch_size", "16", "pairs per step and process (>= 2)"),
     ("workers", "0", "data loader processes"),

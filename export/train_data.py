@@ -214,10 +214,6 @@ class SequenceSource:
             raise ValueError(f"unreadable frame in {frames[0].parent}")
         return fa, boxes[valid[a]], fb, boxes[b]
 
-    def other(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """A frame and box from another draw (usually another sequence), for a negative pair."""
-        return self.sample(rng)[2:]
-
 
 class ImageFolderSource:
     """Both crops cut from one still image around a random region (shift/scale come from the crop jitter)."""
@@ -235,10 +231,6 @@ class ImageFolderSource:
         bw, bh = rng.uniform(0.05, 0.3) * w, rng.uniform(0.05, 0.3) * h
         box = np.array([rng.uniform(0, w - bw), rng.uniform(0, h - bh), bw, bh], np.float32)
         return img, box, img, box
-
-    def other(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """A region of another draw, for a negative pair."""
-        return self.sample(rng)[2:]
 
 
 # ---- night sources: each yields one night image the size of a search crop or larger ---------------------
@@ -323,8 +315,8 @@ class PairStream(IterableDataset):
             except ValueError:
                 continue
             negative = self.negative_pairs > 0 and rng.random() < self.negative_pairs  # no draw at 0
-            if negative:
-                fx, bx = source.other(rng)
+            if negative:  # a scene source moves on to another scene; other sources draw again
+                fx, bx = source.other(rng) if hasattr(source, "other") else source.sample(rng)[2:]
             grey, blur = rng.random() < cfg.grey, rng.random() < cfg.blur
             wz = jittered_window(bz, cfg.exemplar, cfg, cfg.template_shift, cfg.template_scale, rng)
             wx = jittered_window(bx, cfg.instance, cfg, cfg.search_shift, cfg.search_scale, rng)
