@@ -14,6 +14,7 @@ import os
 import sys
 import time
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -64,6 +65,7 @@ class TrainConfig:
     warmup_steps: int = 50
     weight_decay: float = 1e-4
     freeze_backbone_blocks: int = 5       # EfficientNet-Lite0 blocks 0..N-1 stay ImageNet
+    train_only: list[str] = field(default_factory=list)  # parameter-name prefixes to train; [] trains all
     disc_lr: float = 0.005                # paper: discriminator base lr 0.005, poly decay power 0.8
     disc_poly_power: float = 0.8
     lambda_trc: float = 1.0
@@ -169,6 +171,23 @@ def freeze_early_blocks(net: DaDiffNet, blocks: int) -> list[nn.Module]:
     return frozen
 
 
+def freeze_all_but(net: DaDiffNet, prefixes: Sequence[str]) -> list[nn.Module]:
+    """Train only the parameters named with one of `prefixes` (e.g. the head's box branch, so a fine-tune
+    cannot move the features that find the target); the other leaf modules stay in eval mode, BN statistics
+    and dropout included. No prefixes: nothing frozen."""
+    if not prefixes:
+        return []
+    names = [n for n, _ in net.named_parameters()]
+    for prefix in prefixes:
+        if not any(n.startswith(prefix) for n in names):
+            raise ValueError(f"train_only: no parameter of the network starts with {prefix!r}")
+    keep = tuple(prefixes)
+    for name, p in net.named_parameters():
+        if not name.startswith(keep):
+            p.requires_grad_(False)
+    return [m for name, m in net.named_modules() if not list(m.children()) and not (name + ".").startswith(keep)]
+
+
 def param_groups(net: DaDiffNet, cfg: TrainConfig) -> list[dict[str, Any]]:
     """Backbone, the rest, and the DaDiff block as a third group only when its factor differs (so that the
     optimiser states of earlier runs, with two groups, still resume)."""
@@ -212,6 +231,7 @@ class Trainer:
         self.out = Path(cfg.out)
         self.net = build_network(cfg).to(self.device)
         self.frozen = freeze_early_blocks(self.net, cfg.freeze_backbone_blocks)
+        self.frozen += freeze_all_but(self.net, cfg.train_only)
         self.dadiff = cfg.stage == "dadiff"
         self.use_adv = self.dadiff and cfg.adversarial
         self.disc = SuccessiveDiscriminator(self.net.cfg.channels, self.net.cfg.diffusion_total_steps).to(

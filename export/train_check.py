@@ -31,6 +31,7 @@ CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family"
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}
 ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings
+KINDS: dict[str, str] = {"train_only": "a list of names"}  # where the default (empty) does not tell
 
 
 def _kind(default: Any) -> str:
@@ -58,6 +59,8 @@ def _fits(value: Any, kind: str) -> bool:
         return isinstance(value, dict)
     if kind == "a list of strings":
         return isinstance(value, list) and bool(value) and all(isinstance(v, str) for v in value)
+    if kind == "a list of names":  # may be empty
+        return isinstance(value, list) and all(isinstance(v, str) for v in value)
     if kind == "a list of tables":
         return isinstance(value, list) and all(isinstance(v, dict) for v in value)
     return isinstance(value, str)
@@ -95,7 +98,7 @@ def check_train_values(defaults: Any, values: dict[str, Any], path: str | Path) 
     """ValueError `<path>: '<key>' is <value>; expected ...` for the first bad key of `values`."""
     try:
         for key, value in values.items():
-            kind = _kind(getattr(defaults, key))
+            kind = KINDS.get(key) or _kind(getattr(defaults, key))
             if not _fits(value, kind):
                 raise ValueError(f"'{key}' is {value!r}; expected {kind}")
             _check_range(key, value)

@@ -51,6 +51,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("search_scale", "0.18", "search crops rescaled by exp(U(-s, s)) around the target (0-1)"),
     ("loc_region", '"ellipse"', 'box regressed at BAN\'s positive "ellipse" or at every point in the "box"'),
     ("grad_clip", "10.0", "gradient norm clip (> 0)"),
+    ("train_only", "[]", 'parameter-name prefixes to train, the rest frozen, e.g. ["head.box0.loc."]'),
     ("checkpoint_every", "100", "steps between last.pt saves (>= 1)"),
     ("keep_checkpoints", "false", "also keep each of those saves as step-NNNNNN.pt (to choose one by tracking)"),
     ("seed", "0", "random seed"),

@@ -118,6 +118,21 @@ def test_keep_checkpoints_leaves_one_state_per_checkpoint_step(tmp_path, image_f
     assert not list(Path(plain.out).glob("step-*.pt"))
 
 
+def test_train_only_moves_the_named_parameters_alone(tmp_path, image_folder):
+    """train_only: the box branch trains; the backbone, its BN statistics and the classification branch stay."""
+    cfg = config(tmp_path, image_folder, stage="baseline", train_only=["head.box0.loc."], steps=2,
+                 checkpoint_every=2)
+    trainer = Trainer(cfg)
+    before = {k: v.detach().clone() for k, v in trainer.net.state_dict().items()}
+    trainer.step_on(next(iter(data_loader(cfg, trainer.net, 0))))
+    after = trainer.net.state_dict()
+    moved = {k for k in before if not torch.equal(before[k], after[k])}
+    assert moved and all(k.startswith("head.box0.loc.") for k in moved)
+    assert any(k.endswith("running_mean") for k in moved)  # the branch's own BN statistics do follow
+    with pytest.raises(ValueError, match="no parameter of the network starts with 'head.nothing'"):
+        Trainer(replace(cfg, train_only=["head.nothing"]))
+
+
 def test_checkpoint_exports_with_parity(tmp_path, image_folder):
     from dadiff.export.checkpoint import load_checkpoint
     from dadiff.export.onnx_export import export_model
