@@ -101,7 +101,7 @@ def test_pair_stream_renders_scene_pairs_through_the_source_only_when_asked(monk
 
 def test_negative_pairs_put_another_scenes_object_in_the_search_crop(monkeypatch):
     """negative_pairs: the search crop is cut around another scene's target; the points where a target would
-    be positive are negative and nothing else is labelled; at 0 no pair is negative and the stream is as before."""
+    be positive are negative and nothing else is labelled; at 0 no pair is negative (no other scene is drawn)."""
     calls = []
     other = SceneSource.other
 
