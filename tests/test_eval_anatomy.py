@@ -70,3 +70,25 @@ def test_cli_prints_one_row_per_tracker_and_names_a_missing_result(bench, capsys
     assert main(["anatomy", "--dataset", str(bench / "set"), str(bench / "res" / "exact")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no results for 1 of 2 sequences" in err[0] and "dark" in err[0]
+
+
+def write_states(folder: Path, states: dict[str, list[str]]) -> None:
+    for name, told in states.items():
+        (folder / f"{name}.states").write_text("1,init\n" + "".join(f"0.5,{s}\n" for s in told))
+
+
+def test_reported_state_against_the_truth(bench, capsys):
+    """The second table appears only where every sequence has its states, and counts frames 2..N."""
+    folder = bench / "res" / "loses_dark"
+    write_states(folder, {"lit": ["tracking"] * 3, "dark": ["tracking", "lost", "uncertain"]})
+    assert main(["anatomy", "--dataset", str(bench / "set"), str(bench / "res")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    title = out.index(next(line for line in out if line.startswith("reported state against the truth")))
+    rows = {line.split()[0]: line.split()[1:] for line in out[title + 2:]}
+    assert list(rows) == ["loses_dark"]  # 'exact' has no .states files: no row
+    # 4 of 6 frames tracking; 1 of those off (dark); 2 of the 3 off frames flagged; no centred frame flagged
+    assert rows["loses_dark"] == ["0.667", "0.250", "0.667", "0.000"]
+    (folder / "dark.states").write_text("1,init\n0.5,tracking\n")
+    assert main(["anatomy", "--dataset", str(bench / "set"), str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "dark.states" in err[0] and "2 states" in err[0]

@@ -71,6 +71,9 @@ def test_run_writes_pysot_results_and_resumes(bench, corr_model, tmp_path, capsy
     assert boxes.shape == (4, 4)
     x, y, w, h = _gt(bench, "seq001_night")[0]
     assert boxes[0].tolist() == pytest.approx([x + 0.5, y + 0.5, w, h], abs=1e-3)  # spec 8.5 init box
+    states = (folder / "seq001_night.states").read_text().splitlines()
+    assert len(states) == 4 and states[0] == "1,init"
+    assert all(line.split(",")[1] in ("tracking", "uncertain", "lost") for line in states[1:])
     assert sorted(p.name for p in (results / "plots" / "bench").iterdir()) == [
         "norm_precision_ALL.png",
         "precision_ALL.png",

@@ -1,5 +1,6 @@
 """Where a tracker loses its frames: how often it keeps the target's centre, how good its box is there, and
-both against how visible the target is (the mean grey level inside the true box).
+both against how visible the target is (the mean grey level inside the true box); and, where the run saved
+each frame's state, whether that state told the truth.
 
 Success (the area under the IoU curve) mixes the two ways a tracker can fail: losing the target and drawing
 a poor box around it. At night they have different causes: most lost frames are frames where the target
@@ -31,6 +32,35 @@ class Anatomy:
     centred: float
     iou_centred: float
     centred_by_grey: tuple[float, ...]  # NaN where a bin holds no frame
+
+
+@dataclass(frozen=True)
+class Honesty:
+    """How a tracker's reported state matches its frames: what a follow controller or a pilot is told.
+
+    `tracking_off`: of the frames reported 'tracking', the share not centred (a confident wrong lock);
+    `off_flagged`: of the frames not centred, the share reported 'uncertain' or 'lost' (a loss that shows);
+    `centred_flagged`: of the centred frames, the share reported 'uncertain' or 'lost' (a false alarm).
+    """
+
+    name: str
+    tracking: float
+    tracking_off: float
+    off_flagged: float
+    centred_flagged: float
+
+
+def _share(mask: np.ndarray) -> float:
+    return float(mask.mean()) if mask.size else float("nan")
+
+
+def honesty(
+    name: str, gts: Sequence[np.ndarray], preds: Sequence[np.ndarray], states: Sequence[Sequence[str]]
+) -> Honesty:
+    """Pool frames 2..N of every sequence (`states` as `read_states` gives them, one list per sequence)."""
+    ok = np.concatenate([centred_frames(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
+    tracking = np.concatenate([np.asarray(s[1:]) == "tracking" for s in states])
+    return Honesty(name, _share(tracking), _share(~ok[tracking]), _share(~tracking[~ok]), _share(~tracking[ok]))
 
 
 def target_grey(clip: Clip) -> np.ndarray:
@@ -86,4 +116,13 @@ def format_anatomy(dataset: Dataset, rows: Sequence[Anatomy], bins: Sequence[np.
     for r in rows:
         cells = "  ".join(f"{v:>{max(12, len(s))}.3f}" for v, s in zip(r.centred_by_grey, shares, strict=True))
         lines.append(f"{r.name:<{width}}  {r.centred:7.3f}  {r.iou_centred:9.3f}  {cells}")
+    return "\n".join(lines)
+
+
+def format_honesty(rows: Sequence[Honesty]) -> str:
+    width = max(8, *(len(r.name) for r in rows))
+    lines = ["reported state against the truth (off: not centred; flagged: 'uncertain' or 'lost'):",
+             f"{'Tracker':<{width}}  tracking  tracking but off  off but flagged  centred but flagged"]
+    lines += [f"{r.name:<{width}}  {r.tracking:8.3f}  {r.tracking_off:15.3f}  {r.off_flagged:15.3f}  "
+              f"{r.centred_flagged:19.3f}" for r in rows]
     return "\n".join(lines)

@@ -23,7 +23,7 @@ from pathlib import Path
 from ..cli import positive_int
 from ..errors import InputError, ModelError, OneLineParser
 from ..sources import quiet_opencv
-from .anatomy import anatomy, format_anatomy, grey_bins
+from .anatomy import anatomy, format_anatomy, format_honesty, grey_bins, honesty
 from .datasets import Dataset, DatasetError, load_dataset
 from .evaluate import (
     EvalError,
@@ -32,6 +32,7 @@ from .evaluate import (
     TrackerScores,
     TrackerUnavailable,
     read_results,
+    read_states,
     result_folders,
     run_tracker,
     score_folder,
@@ -311,6 +312,14 @@ def cmd_anatomy(args: argparse.Namespace) -> int:
     bins = grey_bins(dataset)
     rows = [anatomy(name, gts, [boxes[seq.name] for seq in dataset.sequences], bins) for name, boxes in results]
     print(format_anatomy(dataset, rows, bins))
+    told = []
+    for (name, folder), (_, boxes) in zip(folders, results, strict=True):
+        states = read_states(dataset, folder)
+        if states is not None:
+            preds = [boxes[seq.name] for seq in dataset.sequences]
+            told.append(honesty(name, gts, preds, [states[seq.name] for seq in dataset.sequences]))
+    if told:
+        print(format_honesty(told))
     return 0
 
 

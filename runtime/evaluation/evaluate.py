@@ -2,9 +2,10 @@
 
 Result files: `<results>/<dataset>/<tracker>/<sequence>.txt`, one `x,y,w,h` line per frame. Frame 0 holds
 the init box of the test protocol (spec 8.5): GT (x, y, w, h) becomes (x + 0.5, y + 0.5, w, h), for every
-tracker, so that all trackers share frame 0. A run is resumable: a sequence whose result file already has
-one line per frame is skipped. Files are written whole (temporary file, then rename), so an interrupted
-run never leaves a truncated file behind.
+tracker, so that all trackers share frame 0. Beside each, `<sequence>.states` holds what the tracker told its
+user in each frame, `score,state` (frame 0: `1,init`), so that reports can check the state against the
+truth. A run is resumable: a sequence whose result file already has one line per frame is skipped. Files are
+written whole (temporary file, then rename), so an interrupted run never leaves a truncated file behind.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from .datasets import Dataset, DatasetError, load_dataset, read_boxes
 from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
+STATES = ".states"  # suffix of the per-frame score,state file beside each result file
 
 
 class EvalError(Exception):
@@ -172,18 +174,42 @@ def tracker_folder(results: Path, dataset: str, tracker: str) -> Path:
     return Path(results) / dataset / tracker
 
 
-def write_result(path: Path, boxes: Iterable[Sequence[float]]) -> None:
-    """Write `x,y,w,h` lines atomically (a temporary file renamed over `path`)."""
+def _write_atomic(path: Path, text: str) -> None:
+    """Write `text` through a temporary file renamed over `path`: never a truncated file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    lines = "".join(",".join(_number(v) for v in box) + "\n" for box in boxes)
-    tmp.write_text(lines)
+    tmp.write_text(text)
     os.replace(tmp, path)
+
+
+def write_result(path: Path, boxes: Iterable[Sequence[float]]) -> None:
+    """Write `x,y,w,h` lines atomically."""
+    _write_atomic(path, "".join(",".join(_number(v) for v in box) + "\n" for box in boxes))
+
+
+def write_states(path: Path, states: Iterable[tuple[float, str]]) -> None:
+    """Write `score,state` lines atomically."""
+    _write_atomic(path, "".join(f"{_number(score)},{state}\n" for score, state in states))
 
 
 def _number(value: float) -> str:
     value = float(value)
     return "nan" if math.isnan(value) else f"{value:.4f}".rstrip("0").rstrip(".")
+
+
+def read_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
+    """The state of every frame of every sequence in `folder`, or None where any `.states` file is missing
+    (runs from before they were written, other tools' results)."""
+    out = {}
+    for seq in dataset.sequences:
+        path = Path(folder) / f"{seq.name}{STATES}"
+        if not path.is_file():
+            return None
+        lines = path.read_text().split()
+        if len(lines) != len(seq):
+            raise EvalError(f"{path}: {len(lines)} states, but {seq.name} has {len(seq)} ground-truth frames")
+        out[seq.name] = [line.rpartition(",")[2] for line in lines]
+    return out
 
 
 def read_result(path: Path) -> np.ndarray:
@@ -264,15 +290,18 @@ def run_tracker(
             frame = read_frame(seq.frames[0])
             tracker.init(frame, tuple(seq.boxes[0]))
             boxes: list[Sequence[float]] = [protocol_box(seq.boxes[0])]
+            states: list[tuple[float, str]] = [(1.0, "init")]
             bar.update(1)
             for path in seq.frames[1:]:
                 frame = read_frame(path)
                 start = time.perf_counter()
-                box, _, _ = tracker.update(frame)
+                box, score, state = tracker.update(frame)
                 report.seconds += time.perf_counter() - start
                 boxes.append(box)
+                states.append((score, state))
                 bar.update(1)
             report.frames += len(seq) - 1
+            write_states(folder / f"{seq.name}{STATES}", states)  # first: a complete .txt marks the sequence done
             write_result(folder / f"{seq.name}.txt", boxes)
             report.ran.append(seq.name)
     return report
