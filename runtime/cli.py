@@ -113,8 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=_hp_arg,
         default={},
         metavar="k=v,...",
-        help="override lr, penalty_k, window_influence, uncertain_score, lost_score, "
-        "lost_frames, search_growth, search_growth_max",
+        help="override lr, penalty_k, window_influence, uncertain_score, track_score, score_smoothing, "
+        "found_score, lost_score, lost_frames, search_growth, search_growth_max, max_scale_step, "
+        "max_scale_change, max_aspect_change, max_frame_cover",
     )
     parser.add_argument(
         "--provider", help="onnxruntime provider (cpu, cuda, tensorrt, openvino; default: best)"

@@ -47,11 +47,13 @@ class Params:
 
     `uncertain_score`, `track_score`: the state is decided on a smoothed confidence with hysteresis: it
     enters 'tracking' at `track_score` or above and leaves it below `uncertain_score`, so a score hovering
-    near one threshold does not flip the state at frame rate.
+    near one threshold does not flip the state at frame rate. These two only label frames: what the tracker
+    does does not depend on them, so they can be set for what a follow controller should be told.
     `score_smoothing`: weight of the newest frame in that confidence (an EMA; 1 = no smoothing).
     `lost_score`, `lost_frames`: that many consecutive raw scores below `lost_score` make the state 'lost'
-    (a single one is never 'tracking'). `lost_score=0` is the released tracker exactly: no lost state, no
-    smoothing, no size bounds.
+    (a single one is never 'tracking'); a raw score of `found_score` or more ends the streak, and ends
+    'lost' (the target is found again: the box moves again). `lost_score=0` is the released tracker
+    exactly: no lost state, no smoothing, no size bounds.
     `search_growth`, `search_growth_max`: while lost, the search region grows by this factor per frame,
     up to this multiple of its normal size.
     `max_scale_step`: width and height each change by at most this factor per frame.
@@ -63,12 +65,13 @@ class Params:
     lr: float
     penalty_k: float
     window_influence: float
-    uncertain_score: float = 0.5
+    uncertain_score: float = 0.85
+    found_score: float = 0.5
     lost_score: float = 0.25
     lost_frames: int = 3
     search_growth: float = 1.25
     search_growth_max: float = 2.5
-    track_score: float = 0.6
+    track_score: float = 0.9
     score_smoothing: float = 0.2
     max_scale_step: float = 1.1
     max_scale_change: float = 8.0
@@ -92,6 +95,7 @@ _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "penalty_k": (0.0, None),
     "window_influence": (0.0, 1.0),
     "uncertain_score": (0.0, 1.0),
+    "found_score": (0.0, 1.0),
     "lost_score": (0.0, 1.0),
     "lost_frames": (1, 1_000_000),
     "search_growth": (1.0, 10.0),

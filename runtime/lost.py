@@ -13,7 +13,7 @@ class LostMonitor:
     Lost and found follow the raw score: `lost_frames` consecutive scores below `lost_score` mean lost;
     while lost the search region grows by `search_growth` per frame up to `search_growth_max`, and after
     one frame at that cap starts again from the normal size (a sawtooth), until a score reaches
-    `uncertain_score` again. The restart matters because a wide region shows the target small, which a
+    `found_score` again. The restart matters because a wide region shows the target small, which a
     network may not detect: near and wide searches keep alternating.
 
     'tracking' versus 'uncertain' follows `confidence`, an EMA of the score (zero for an implausible box),
@@ -65,7 +65,7 @@ class LostMonitor:
     def _lost_step(self, score: float) -> bool:
         """Advance the lost streak and the search growth; True when the frame is (still) lost."""
         p = self.params
-        if score >= p.uncertain_score:
+        if score >= p.found_score:
             self._low, self.growth = 0, 1.0
             return False
         if self.state == LOST:

@@ -86,17 +86,28 @@ def test_scores_hovering_at_the_threshold_do_not_flip_the_state() -> None:
 
 def test_hysteresis_enter_high_leave_low() -> None:
     monitor = LostMonitor(SMOOTHED)
+    between = (SMOOTHED.uncertain_score + SMOOTHED.track_score) / 2  # 0.875: between leaving and entering
     for _ in range(40):
         monitor.observe(0.3)
     assert monitor.state == "uncertain" and monitor.confidence == pytest.approx(0.3, abs=1e-3)
-    states = [monitor.observe(0.9) for _ in range(6)]
+    states = [monitor.observe(0.99) for _ in range(15)]
     assert states[:2] == ["uncertain"] * 2 and states[-1] == "tracking"  # entering waits for the confidence
     for _ in range(40):
-        assert monitor.observe(0.55) == "tracking"  # 0.55 keeps it: above the leaving threshold (0.5)
+        assert monitor.observe(between) == "tracking"  # keeps it: above the leaving threshold
     for _ in range(40):
         monitor.observe(0.3)
-    for _ in range(40):  # but does not enter it: below the entering threshold (0.6)
-        assert monitor.observe(0.55) == "uncertain"
+    for _ in range(40):  # but does not enter it: below the entering threshold
+        assert monitor.observe(between) == "uncertain"
+
+
+def test_found_again_moves_the_box_before_the_label_says_tracking() -> None:
+    """`found_score` ends 'lost' (the tracker follows the target again); the label waits for the confidence."""
+    monitor = LostMonitor(SMOOTHED)
+    for _ in range(SMOOTHED.lost_frames):
+        monitor.observe(0.1)
+    assert monitor.state == "lost"
+    assert SMOOTHED.found_score <= 0.6 < SMOOTHED.uncertain_score
+    assert monitor.observe(0.6) == "uncertain" and monitor.growth == 1.0
 
 
 def test_a_clear_failure_leaves_tracking_at_once() -> None:
