@@ -117,4 +117,4 @@ def test_the_shipped_default_is_a_trained_mobile_model() -> None:
     assert (folder / "MODEL_CARD.md").is_file()
     tracker = Tracker.load(threads=1)
     assert tracker.backend.meta["family"] == "dadiff-mobile"
-    assert "runs/mobile-dadiff-companions/final.pt" in (folder / "MODEL_CARD.md").read_text()  # names its run
+    assert "runs/mobile-dadiff-boxhead2/step-000350.pt" in (folder / "MODEL_CARD.md").read_text()  # names its run
