@@ -18,6 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from .config import TUNABLE_KEYS
 from .cpu import int8_warning
 from .errors import InputError, ModelError
 from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
@@ -113,9 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_hp_arg,
         default={},
         metavar="k=v,...",
-        help="override lr, penalty_k, window_influence, uncertain_score, track_score, score_smoothing, "
-        "found_score, lost_score, lost_frames, search_growth, search_growth_max, max_scale_step, "
-        "max_scale_change, max_aspect_change, max_frame_cover",
+        help="override " + ", ".join(TUNABLE_KEYS),
     )
     parser.add_argument(
         "--provider", help="onnxruntime provider (cpu, cuda, tensorrt, openvino; default: best)"

@@ -50,6 +50,11 @@ class Honesty:
     centred_flagged: float
 
 
+def _pooled_centred(gts: Sequence[np.ndarray], preds: Sequence[np.ndarray]) -> np.ndarray:
+    """`centred_frames` of frames 2..N of every sequence, in one array (frame 1 is the given box)."""
+    return np.concatenate([centred_frames(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
+
+
 def _share(mask: np.ndarray) -> float:
     return float(mask.mean()) if mask.size else float("nan")
 
@@ -58,7 +63,7 @@ def honesty(
     name: str, gts: Sequence[np.ndarray], preds: Sequence[np.ndarray], states: Sequence[Sequence[str]]
 ) -> Honesty:
     """Pool frames 2..N of every sequence (`states` as `read_states` gives them, one list per sequence)."""
-    ok = np.concatenate([centred_frames(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
+    ok = _pooled_centred(gts, preds)
     tracking = np.concatenate([np.asarray(s[1:]) == "tracking" for s in states])
     return Honesty(name, _share(tracking), _share(~ok[tracking]), _share(~tracking[~ok]), _share(~tracking[ok]))
 
@@ -92,7 +97,7 @@ def grey_bin(grey: np.ndarray) -> np.ndarray:
 
 def anatomy(name: str, gts: Sequence[np.ndarray], preds: Sequence[np.ndarray], bins: Sequence[np.ndarray]) -> Anatomy:
     """Pool frames 2..N of every sequence (`bins` from `grey_bin`, one array per sequence)."""
-    ok = np.concatenate([centred_frames(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
+    ok = _pooled_centred(gts, preds)
     overlap = np.concatenate([iou(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
     where = np.concatenate([b[1:] for b in bins])
     by_grey = tuple(float(ok[where == k].mean()) if (where == k).any() else float("nan")

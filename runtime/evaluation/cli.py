@@ -308,16 +308,13 @@ def cmd_anatomy(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset).select(args.sequences)
     folders = result_folders(args.dirs, dataset)
     gts = [seq.boxes for seq in dataset.sequences]
-    results = [(name, read_results(dataset, folder)) for name, folder in folders]  # all checked before reading frames
+    # every result and state file is read and checked before the (slow) pass over the frames
+    runs = [(name, read_results(dataset, folder), read_states(dataset, folder)) for name, folder in folders]
+    runs = [(name, [boxes[seq.name] for seq in dataset.sequences], states) for name, boxes, states in runs]
     bins = grey_bins(dataset)
-    rows = [anatomy(name, gts, [boxes[seq.name] for seq in dataset.sequences], bins) for name, boxes in results]
-    print(format_anatomy(dataset, rows, bins))
-    told = []
-    for (name, folder), (_, boxes) in zip(folders, results, strict=True):
-        states = read_states(dataset, folder)
-        if states is not None:
-            preds = [boxes[seq.name] for seq in dataset.sequences]
-            told.append(honesty(name, gts, preds, [states[seq.name] for seq in dataset.sequences]))
+    print(format_anatomy(dataset, [anatomy(name, gts, preds, bins) for name, preds, _ in runs], bins))
+    told = [honesty(name, gts, preds, [states[seq.name] for seq in dataset.sequences])
+            for name, preds, states in runs if states is not None]
     if told:
         print(format_honesty(told))
     return 0
