@@ -66,6 +66,15 @@ def chain_align_loss(night_out: torch.Tensor, day_out: torch.Tensor) -> torch.Te
     return F.mse_loss(night_out, target) / target.pow(2).mean().clamp_min(1e-6)
 
 
+def restore_loss(night_aligned: torch.Tensor, day_aligned: torch.Tensor, day_neck: torch.Tensor) -> torch.Tensor:
+    """Paired feature restoration: the aligned features of a night crop should be the neck features of the
+    same crop by day (detached), and by day the block should leave the neck features as they are; each term
+    relative to the day features' power. Needs night rendered from the day frames (paired)."""
+    target = day_neck.detach()
+    power = target.pow(2).mean().clamp_min(1e-6)
+    return (F.mse_loss(night_aligned, target) + F.mse_loss(day_aligned, target)) / power
+
+
 def distill_cls_loss(cls: torch.Tensor, teacher_prob: torch.Tensor) -> torch.Tensor:
     """Soft-target cross-entropy of the student's foreground probability against the teacher's, every cell."""
     return F.binary_cross_entropy_with_logits(cls[:, 1] - cls[:, 0], teacher_prob)

@@ -36,6 +36,7 @@ from .losses import (
     distill_cls_loss,
     distill_loc_loss,
     feature_distill_loss,
+    restore_loss,
 )
 from .network import DaDiffNet, build_model
 from .train_check import check_train_values
@@ -74,7 +75,8 @@ class TrainConfig:
     lambda_align: float = 1.0
     adversarial: bool = True              # ablation switches (Table IV)
     align_loss: bool = True
-    align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output
+    align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output;
+    #                                       "restore": aligned night features vs the paired day neck features
     search_scale: float = CropConfig.search_scale  # search crops rescaled by exp(U(-s, s)) around the target
     loc_region: str = "ellipse"           # box regression at BAN's positive points, or "box": every point inside
     grad_clip: float = 10.0
@@ -118,9 +120,9 @@ class TrainConfig:
         cfg = cls(**flat)
         if cfg.stage not in ("baseline", "dadiff"):
             raise ValueError(f"{path}: stage must be 'baseline' or 'dadiff', got {cfg.stage!r}")
-        if cfg.align_target == "chain" and cfg.night is not None:
-            raise ValueError(f"{path}: align_target 'chain' needs night rendered from the day frames (paired); "
-                             f"drop 'night' or use align_target 'eps'")
+        if cfg.align_target in ("chain", "restore") and cfg.night is not None:
+            raise ValueError(f"{path}: align_target '{cfg.align_target}' needs night rendered from the day frames "
+                             f"(paired); drop 'night' or use align_target 'eps'")
         if cfg.lambda_night_distill and (cfg.teacher is None or cfg.night is not None):
             raise ValueError(f"{path}: lambda_night_distill needs a teacher and night rendered from the day frames "
                              f"(paired); set 'teacher' and drop 'night'")
@@ -411,6 +413,12 @@ class TrainForward(nn.Module):
             # what it gives for the same frame by day (detached), so the head sees day-like features at night
             losses = [chain_align_loss(n[-1], d[-1])
                       for db, nb in ((zb, zn), (xb, xn)) for d, n in zip(db.states, nb.states, strict=True)]
+            out["align"] = torch.stack(losses).mean()
+        elif net.cfg.use_dadiff and self.align_target == "restore" and paired:
+            # L_align as paired restoration: what the head receives at night should be the day features of the
+            # same frame, and by day the block should change nothing (the block learns to act only at night)
+            losses = [restore_loss(n, d, dn) for db, nb in ((zb, zn), (xb, xn))
+                      for n, d, dn in zip(nb.aligned, db.aligned, db.neck, strict=True)]
             out["align"] = torch.stack(losses).mean()
         elif net.cfg.use_dadiff:
             # L_align: recover day features from noise, conditioned on the night features of the same content

@@ -28,7 +28,7 @@ MINIMUM: dict[str, tuple[float, bool]] = {
 }
 MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0, "negative_pairs": 1.0, "search_scale": 1.0}  # inclusive
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
-                                       "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain"),
+                                       "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain", "restore"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}
 ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings
 KINDS: dict[str, str] = {"train_only": "a list of names"}  # where the default (empty) does not tell

@@ -47,7 +47,8 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("lambda_align", "1.0", "alignment loss weight"),
     ("adversarial", "true", "ablation switch: the adversarial loss"),
     ("align_loss", "true", "ablation switch: the alignment loss"),
-    ("align_target", '"eps"', '"eps" (paper eq. 6) or "chain": sampler output on night vs on the paired day frame'),
+    ("align_target", '"eps"', '"eps" (paper eq. 6), "chain": sampler output on night vs on the paired day frame, '
+     '"restore": aligned night features vs the paired day neck features'),
     ("search_scale", "0.18", "search crops rescaled by exp(U(-s, s)) around the target (0-1)"),
     ("loc_region", '"ellipse"', 'box regressed at BAN\'s positive "ellipse" or at every point in the "box"'),
     ("grad_clip", "10.0", "gradient norm clip (> 0)"),

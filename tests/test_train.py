@@ -299,7 +299,31 @@ def test_chain_alignment_needs_paired_night(tmp_path, capsys):
     assert "align_target 'chain' needs night rendered from the day frames" in capsys.readouterr().err
     bad.write_text('[train]\nalign_target = "x0"\n')
     assert main(["--config", str(bad)]) == 2
-    assert "'align_target' is 'x0'; expected one of eps, chain" in capsys.readouterr().err
+    assert "'align_target' is 'x0'; expected one of eps, chain, restore" in capsys.readouterr().err
+
+
+def test_restore_alignment_trains_the_block_to_give_day_features_at_night(tmp_path, image_folder):
+    """align_target = "restore": zero exactly when the aligned night and day features are the day neck's; with
+    only the block training it goes down and the rest of the network does not move."""
+    from dadiff.export.losses import restore_loss
+
+    day = torch.randn(2, 4, 3, 3)
+    assert restore_loss(day.clone(), day.clone(), day).item() == 0.0
+    assert restore_loss(day + 1.0, day.clone(), day).item() > 0.0
+    assert restore_loss(day.clone(), day + 1.0, day).item() > 0.0  # by day the block should change nothing
+
+    cfg = config(tmp_path, image_folder, night=None, adversarial=False, lambda_trc=0.0, align_target="restore",
+                 model={"align_residual": True}, train_only=["diffusion.", "align_track.", "align_scale"])
+    trainer = Trainer(cfg)
+    without_dropout(trainer)
+    batch = next(iter(data_loader(cfg, trainer.net, 0)))
+    head_w = trainer.net.head.box0.loc.head[3].weight.detach().clone()
+    first = trainer.step_on(batch)["align"]
+    for _ in range(5):
+        last = trainer.step_on(batch)["align"]
+    assert last < first
+    assert trainer.net.align_scale.abs().sum() > 0  # the gate opened from 0
+    assert torch.equal(trainer.net.head.box0.loc.head[3].weight, head_w)
 
 
 @pytest.mark.skipif(not TEACHER.is_dir(), reason="NanoTrack v3 teacher weights are not at ../shared/weights")
