@@ -75,9 +75,19 @@ def cached_model_path(model: Path, runtime_version: str) -> Path | None:
 
 
 def prune(root: Path, keep: int = KEEP) -> None:
-    """Remove all but the `keep` most recently used cached graphs."""
-    entries = sorted(root.glob("*.onnx"), key=lambda p: p.stat().st_mtime, reverse=True)
-    for old in entries[keep:]:
+    """Remove all but the `keep` most recently used cached graphs.
+
+    Another process may prune the same folder at the same time: an entry that vanishes between the listing
+    and its stat is skipped (it used to fail that process's model load with "No such file or directory").
+    """
+    entries = []
+    for path in root.glob("*.onnx"):
+        try:
+            entries.append((path.stat().st_mtime, path))
+        except OSError:
+            continue
+    entries.sort(reverse=True)
+    for _, old in entries[keep:]:
         old.unlink(missing_ok=True)
 
 

@@ -219,6 +219,19 @@ def test_cache_keeps_only_the_most_recent_graphs(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.glob("*.onnx")) == sorted(f"m{i}.onnx" for i in range(3, KEEP + 3))
 
 
+def test_prune_skips_an_entry_another_process_removed_meanwhile(tmp_path: Path) -> None:
+    """Two trackers starting at once prune one cache folder: an entry listed but gone before its stat (here a
+    dangling link) is skipped instead of failing the load ("No such file or directory", seen with two
+    `dadiff-eval run` at once)."""
+    (tmp_path / "gone.onnx").symlink_to(tmp_path / "removed-by-the-other-process.onnx")
+    for i in range(KEEP + 1):
+        entry = tmp_path / f"m{i}.onnx"
+        entry.write_bytes(b"x")
+        os.utime(entry, (i + 1, i + 1))
+    prune(tmp_path)
+    assert not (tmp_path / "m0.onnx").exists() and (tmp_path / f"m{KEEP}.onnx").exists()
+
+
 def test_recent_fps_is_right_before_the_first_second(monkeypatch) -> None:
     """A clip shorter than a second: the overlay's FPS is the rate so far, not one frame over microseconds
     (it read 105219 FPS on a 120-frame clip)."""
