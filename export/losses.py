@@ -54,6 +54,12 @@ def align_loss(denoiser: Denoiser, alpha_bar: torch.Tensor, x0: torch.Tensor, co
     return F.mse_loss(pred, eps)
 
 
+def relative_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """MSE against a detached target, relative to the target's power (so feature scale does not set the weight)."""
+    target = target.detach()
+    return F.mse_loss(pred, target) / target.pow(2).mean().clamp_min(1e-6)
+
+
 def chain_align_loss(night_out: torch.Tensor, day_out: torch.Tensor) -> torch.Tensor:
     """MSE between the sampler's output on night features and its (detached) output on the paired day frame,
     relative to the day output's power: the x0 form of eq. 6 on the deterministic chain used at inference.
@@ -62,17 +68,14 @@ def chain_align_loss(night_out: torch.Tensor, day_out: torch.Tensor) -> torch.Te
     up to 1e6 at t = 0, so on paired day/night features it stays at ~1.0 (eps_theta cannot beat predicting 0);
     the x0 form drops that weighting and measures the alignment itself.
     """
-    target = day_out.detach()
-    return F.mse_loss(night_out, target) / target.pow(2).mean().clamp_min(1e-6)
+    return relative_mse(night_out, day_out)
 
 
 def restore_loss(night_aligned: torch.Tensor, day_aligned: torch.Tensor, day_neck: torch.Tensor) -> torch.Tensor:
     """Paired feature restoration: the aligned features of a night crop should be the neck features of the
     same crop by day (detached), and by day the block should leave the neck features as they are; each term
     relative to the day features' power. Needs night rendered from the day frames (paired)."""
-    target = day_neck.detach()
-    power = target.pow(2).mean().clamp_min(1e-6)
-    return (F.mse_loss(night_aligned, target) + F.mse_loss(day_aligned, target)) / power
+    return relative_mse(night_aligned, day_neck) + relative_mse(day_aligned, day_neck)
 
 
 def distill_cls_loss(cls: torch.Tensor, teacher_prob: torch.Tensor) -> torch.Tensor:
