@@ -5,6 +5,7 @@ dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R
 dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
+dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
 dadiff-eval tune --model M --dataset D [--dataset D2] [--sequences GLOB] [--grid KEY=V1,V2 ...] [--out trials.csv]
@@ -37,6 +38,7 @@ from .evaluate import (
     run_tracker,
     score_folder,
 )
+from .fixed_camera import LabelSettings, write_fixed_camera_benchmark
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
 from .metrics import paired_difference
 from .night import NIGHT_STYLES
@@ -63,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog=PROG, description="One-pass evaluation of single-object trackers.",
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,anatomy,generate,data,tune}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,anatomy,generate,video,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -124,9 +126,26 @@ def build_parser() -> argparse.ArgumentParser:
         help="night look: classic (the seed-2026 benchmark's) or real (as measured on real night drone video); "
         "default: classic for skimage, real for library",
     )
+    _add_video_parser(sub)
     _add_data_parser(sub)
     _add_tune_parser(sub)
     return parser
+
+
+def _add_video_parser(sub: argparse._SubParsersAction) -> None:
+    video = sub.add_parser("video", help="day and night sequences from a fixed-camera video, its movers labelled "
+                           "by background subtraction (OTB layout)")
+    video.add_argument("--video", required=True, type=Path, help="video file (or folder of frames) from a camera "
+                       "that does not move")
+    video.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    video.add_argument("--seed", type=int, default=0, help="seed of the night cameras and lights (default 0)")
+    video.add_argument("--min-frames", type=positive_int, default=60, help="shortest sequence (default 60)")
+    video.add_argument("--max-frames", type=positive_int, default=150, help="longest sequence (default 150)")
+    video.add_argument("--min-aspect", type=float, default=0.0,
+                       help="height over width every box must reach (1.8: lone upright people; default 0: any)")
+    video.add_argument("--threshold", type=positive_int, default=30,
+                       help="grey-level difference from the background that counts as moving (default 30)")
+    video.add_argument("--min-area", type=positive_int, default=150, help="smallest box in px (default 150)")
 
 
 def _add_tune_parser(sub: argparse._SubParsersAction) -> None:
@@ -342,6 +361,20 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_video(args: argparse.Namespace) -> int:
+    if args.max_frames < args.min_frames:
+        raise SceneError(f"--max-frames {args.max_frames} is below --min-frames {args.min_frames}")
+    settings = LabelSettings(threshold=args.threshold, min_area=args.min_area, min_frames=args.min_frames,
+                             max_frames=args.max_frames, min_aspect=args.min_aspect)
+    start = time.perf_counter()
+    tracks = write_fixed_camera_benchmark(args.video, args.out, args.seed, settings)
+    frames = sum(len(t.boxes) for t in tracks)
+    print(f"wrote {len(tracks)} day + {len(tracks)} night sequences ({frames} frames each way, "
+          f"{min(len(t.boxes) for t in tracks)}-{max(len(t.boxes) for t in tracks)} per sequence) from "
+          f"{args.video} to {args.out} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
 def format_library(library: Library) -> str:
     """One row per package and role: images per split and the licence; then the folder and its size."""
     counts = Counter((i.package, i.role, i.split) for r in ROLES for s in SPLITS for i in library.images(r, s))
@@ -437,7 +470,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "generate": cmd_generate,
-                "data": cmd_data, "tune": cmd_tune}
+                "video": cmd_video, "data": cmd_data, "tune": cmd_tune}
     try:
         with quiet_opencv():
             return commands[args.command](args)
