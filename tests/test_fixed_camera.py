@@ -106,3 +106,18 @@ def test_video_command_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys, 
     assert eval_main(["video", "--video", str(video), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--min-frames", "80", "--max-frames", "50"], "--max-frames 50 is below --min-frames 80"),
+        (["--min-aspect", "-1"], "--min-aspect -1.0 must be in [0, 100)"),
+        (["--threshold", "300"], "--threshold 300 below 255"),
+    ],
+)
+def test_video_command_bad_settings_are_one_line_and_exit_2(tmp_path: Path, capsys, args, message):
+    video = _write_folder(_video([_walk(30, 100, 3, 80)], 80), tmp_path / "walk")
+    assert eval_main(["video", "--video", str(video), "--out", str(tmp_path / "out"), *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")

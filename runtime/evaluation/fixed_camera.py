@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
@@ -204,7 +204,7 @@ def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int =
         "video_sha256": _sha256(Path(video)) if Path(video).is_file() else None,
         "seed": seed,
         "night": "real",
-        "settings": settings.__dict__,
+        "settings": asdict(settings),
         "sequences": [{"name": f"vid{k + 1:03d}", "video_frames": [t.start + 1, t.start + len(t.boxes)]}
                       for k, t in enumerate(tracks)],
     }
