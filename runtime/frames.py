@@ -1,4 +1,4 @@
-"""Frame checks and crop-to-tensor conversion."""
+"""Frame checks, crop-to-tensor conversion, and a video decoded into memory."""
 
 from __future__ import annotations
 
@@ -41,3 +41,17 @@ def to_blob(patch: np.ndarray, channel_order: str = "BGR", out: np.ndarray | Non
         return np.ascontiguousarray(planes[None], dtype=np.float32)
     np.copyto(out[0], planes)
     return out
+
+
+def decode_video(path: str, limit: int | None = None) -> list[np.ndarray]:
+    """The first `limit` frames (all if None) of a video file as BGR uint8 arrays; fewer if it ends first,
+    none if OpenCV cannot open it. Callers that need the frames again (benchmarks, labelling) keep them."""
+    capture = cv2.VideoCapture(path)
+    frames = []
+    while limit is None or len(frames) < limit:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    capture.release()
+    return frames

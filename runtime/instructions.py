@@ -109,7 +109,7 @@ def _load_tracker(kind: str, target: str):
 
 def _work(argv: list[str]) -> None:
     """The counted program: decode the clip into memory, init on its first frame, run `updates` updates."""
-    import cv2
+    from .frames import decode_video
 
     p = argparse.ArgumentParser(prog="python -m dadiff.runtime.instructions")
     p.add_argument("kind", choices=("model", "nano"))
@@ -118,14 +118,7 @@ def _work(argv: list[str]) -> None:
     p.add_argument("box")
     p.add_argument("updates", type=int)
     args = p.parse_args(argv)
-    capture = cv2.VideoCapture(args.video)
-    frames = []
-    while len(frames) < CLIP:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(frame)
-    capture.release()
+    frames = decode_video(args.video, CLIP)
     if len(frames) < 2:
         sys.exit(f"{args.video}: fewer than 2 frames")
     tracker = _load_tracker(args.kind, args.target)

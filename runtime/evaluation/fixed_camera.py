@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..frames import decode_video
 from .night import NightLights, RealNight
 from .scene_error import SceneError
 
@@ -65,14 +66,7 @@ def read_video(path: str | Path, max_frames: int | None = None) -> list[np.ndarr
     else:
         if not path.is_file():
             raise SceneError(f"{path}: no such video file or image folder")
-        capture = cv2.VideoCapture(str(path))
-        frames = []
-        while max_frames is None or len(frames) < max_frames:
-            ok, frame = capture.read()
-            if not ok:
-                break
-            frames.append(frame)
-        capture.release()
+        frames = decode_video(str(path), max_frames)
     if len(frames) < 2:
         raise SceneError(f"{path}: not a readable video ({len(frames)} frames decoded)")
     if any(f.shape != frames[0].shape for f in frames):
