@@ -113,7 +113,7 @@ def test_video_command_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys, 
     [
         (["--min-frames", "80", "--max-frames", "50"], "--max-frames 50 is below --min-frames 80"),
         (["--min-aspect", "-1"], "--min-aspect -1.0 must be in [0, 100)"),
-        (["--threshold", "300"], "--threshold 300 below 255"),
+        (["--threshold", "300"], "--threshold 300 must be below 255"),
     ],
 )
 def test_video_command_bad_settings_are_one_line_and_exit_2(tmp_path: Path, capsys, args, message):

@@ -364,9 +364,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def cmd_video(args: argparse.Namespace) -> int:
     if args.max_frames < args.min_frames:
         raise SceneError(f"--max-frames {args.max_frames} is below --min-frames {args.min_frames}")
-    if not 0 <= args.min_aspect < 100 or args.threshold > 254:
-        raise SceneError(f"--min-aspect {args.min_aspect} must be in [0, 100) and --threshold {args.threshold} "
-                         "below 255")
+    if not 0 <= args.min_aspect < 100:
+        raise SceneError(f"--min-aspect {args.min_aspect} must be in [0, 100)")
+    if args.threshold > 254:
+        raise SceneError(f"--threshold {args.threshold} must be below 255 (grey levels)")
     settings = LabelSettings(threshold=args.threshold, min_area=args.min_area, min_frames=args.min_frames,
                              max_frames=args.max_frames, min_aspect=args.min_aspect)
     start = time.perf_counter()
