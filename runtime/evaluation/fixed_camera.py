@@ -13,7 +13,6 @@ the sequence's first frame.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -22,8 +21,12 @@ import cv2
 import numpy as np
 
 from ..frames import decode_video
+from ..ort_cache import file_sha256
+from .datasets import list_frames
+from .metrics import iou
 from .night import NightLights, RealNight
 from .scene_error import SceneError
+from .scenes import write_boxes, write_frame
 
 BACKGROUND_FRAMES = 60  # frames the median background is taken over (evenly spaced)
 
@@ -59,8 +62,7 @@ def read_video(path: str | Path, max_frames: int | None = None) -> list[np.ndarr
     """All frames (BGR uint8) of a video file, or of a folder of images in name order."""
     path = Path(path).expanduser()
     if path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png", ".bmp"))
-        frames = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in files[:max_frames]]
+        frames = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in list_frames(path)[:max_frames]]
         if any(f is None for f in frames):
             raise SceneError(f"{path}: an image in it cannot be read")
     else:
@@ -92,12 +94,8 @@ def foreground_boxes(grey: np.ndarray, back: np.ndarray, settings: LabelSettings
 
 
 def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    x0 = np.maximum(box[0], boxes[:, 0])
-    y0 = np.maximum(box[1], boxes[:, 1])
-    x1 = np.minimum(box[0] + box[2], boxes[:, 0] + boxes[:, 2])
-    y1 = np.minimum(box[1] + box[3], boxes[:, 1] + boxes[:, 3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    return inter / (box[2] * box[3] + boxes[:, 2] * boxes[:, 3] - inter)
+    """IoU of one box with each of `boxes` (the benchmark's own IoU, one box against many)."""
+    return iou(np.broadcast_to(box, boxes.shape), boxes)
 
 
 def _whole(box: np.ndarray, size: tuple[int, int], settings: LabelSettings) -> bool:
@@ -176,7 +174,6 @@ def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int =
     if not tracks:
         raise SceneError(f"{video}: no mover seen whole and alone for {settings.min_frames} frames (is the camera "
                          "fixed? try a lower --min-frames)")
-    params = [cv2.IMWRITE_JPEG_QUALITY, 92]
     table = {}
     for k, track in enumerate(tracks):
         name = f"vid{k + 1:03d}"
@@ -186,16 +183,14 @@ def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int =
             folder = out / f"{name}_{kind}"
             (folder / "img").mkdir(parents=True)
             for i, image in enumerate(images):
-                if not cv2.imwrite(str(folder / "img" / f"{i + 1:04d}.jpg"), image, params):
-                    raise SceneError(f"{folder / 'img'}: cannot write frames")
-            (folder / "groundtruth_rect.txt").write_text(
-                "".join(",".join(f"{v:.0f}" for v in row) + "\n" for row in track.boxes))
+                write_frame(folder / "img", i, image)
+            write_boxes(folder / "groundtruth_rect.txt", track.boxes)
         table[f"{name}_day"], table[f"{name}_night"] = [], ["LAI"]
     (out / "attributes.json").write_text(json.dumps(table, indent=1) + "\n")
     info = {
         "generator": "dadiff.runtime.evaluation.fixed_camera",
         "video": str(video),
-        "video_sha256": _sha256(Path(video)) if Path(video).is_file() else None,
+        "video_sha256": file_sha256(Path(video)) if Path(video).is_file() else None,
         "seed": seed,
         "night": "real",
         "settings": asdict(settings),
@@ -205,10 +200,3 @@ def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int =
     (out / "benchmark.json").write_text(json.dumps(info, indent=1) + "\n")
     return tracks
 
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()

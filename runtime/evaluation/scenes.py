@@ -143,8 +143,15 @@ def make_sequence(
     return SceneSequence(f"scene{seed}", day, nights, scene.boxes.copy(), scene.attributes)
 
 
-def _write_boxes(path: Path, boxes: np.ndarray) -> None:
+def write_boxes(path: Path, boxes: np.ndarray) -> None:
+    """An OTB `groundtruth_rect.txt`: one x,y,w,h line per frame."""
     path.write_text("".join(",".join(f"{v:.3f}" for v in row) + "\n" for row in boxes))
+
+
+def write_frame(img_folder: Path, index: int, image: np.ndarray) -> None:
+    """Frame `index` (from 0) of an OTB sequence as `img_folder/NNNN.jpg` (from 0001, JPEG quality 92)."""
+    if not cv2.imwrite(str(img_folder / f"{index + 1:04d}.jpg"), image, [cv2.IMWRITE_JPEG_QUALITY, 92]):
+        raise SceneError(f"{img_folder}: cannot write frames")
 
 
 def _tune_worker() -> None:
@@ -169,15 +176,13 @@ def _write_sequence(job: tuple) -> tuple[str, tuple[str, ...]]:
     folders = {kind: root / f"{name}_{kind}" for kind in ("day", "night")}
     for folder in folders.values():
         (folder / "img").mkdir(parents=True, exist_ok=True)
-    params = [cv2.IMWRITE_JPEG_QUALITY, 92]
     for i in range(frames):
         day, _ = scene.render(i)
         night = camera(day, i, _night_rng(entropy, i))
         for kind, image in (("day", day), ("night", night)):
-            if not cv2.imwrite(str(folders[kind] / "img" / f"{i + 1:04d}.jpg"), image, params):
-                raise SceneError(f"{folders[kind] / 'img'}: cannot write frames")
+            write_frame(folders[kind] / "img", i, image)
     for folder in folders.values():
-        _write_boxes(folder / "groundtruth_rect.txt", scene.boxes)
+        write_boxes(folder / "groundtruth_rect.txt", scene.boxes)
     return name, scene.attributes
 
 
