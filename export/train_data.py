@@ -123,7 +123,7 @@ class SceneSource:
     photos, after `dadiff-eval data fetch`)."""
 
     def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4,
-                 source: str = "skimage", companions: float = 0.0) -> None:
+                 source: str = "skimage", companions: float = 0.0, stretch: float = 0.0) -> None:
         from dadiff.runtime.evaluation.library_scenes import open_scene_library
         from dadiff.runtime.evaluation.photos import load_photos
         from dadiff.runtime.evaluation.scenes import SceneError
@@ -132,6 +132,8 @@ class SceneSource:
             raise ValueError(f"unknown scene source {source!r}; expected skimage or library")
         if not 0 <= companions <= 1 or (companions and source != "library"):
             raise ValueError(f"companions is {companions}; expected a share 0-1 of library scenes")
+        if not 0 <= stretch <= 1 or (stretch and source != "library"):
+            raise ValueError(f"stretch is {stretch}; expected a share 0-1 of library scenes")
         try:
             self.photos = load_photos(split) if source == "skimage" else None
             self.library = open_scene_library() if source == "library" else None
@@ -141,6 +143,7 @@ class SceneSource:
         self.max_gap = max_gap
         self.pairs_per_scene = pairs_per_scene  # building a scene costs ~10x rendering one of its frames
         self.companions = companions  # share of library scenes with a look-alike walking beside the target
+        self.stretch = stretch  # share of library scenes whose target is not rigid, often upright like a walker
         self._scene, self._uses = None, 0
 
     def _new_scene(self, rng: np.random.Generator):
@@ -149,7 +152,9 @@ class SceneSource:
 
         if self.library is not None:
             companion = self.companions > 0 and rng.random() < self.companions  # no draw at 0: same stream
-            return random_library_scene(rng, self.library, self.split, frames=self.max_gap + 1, companion=companion)
+            stretch = self.stretch > 0 and rng.random() < self.stretch
+            return random_library_scene(rng, self.library, self.split, frames=self.max_gap + 1,
+                                        companion=companion, stretch=stretch)
         return Scene.random(rng, self.photos, frames=self.max_gap + 1)
 
     def sample(self, rng: np.random.Generator):
@@ -265,7 +270,8 @@ def make_day_source(spec: dict):
     kind = spec.get("kind")
     if kind == "scenes":
         return SceneSource(spec.get("split", "train"), pairs_per_scene=int(spec.get("pairs", 4)),
-                           source=spec.get("source", "skimage"), companions=float(spec.get("companions", 0.0)))
+                           source=spec.get("source", "skimage"), companions=float(spec.get("companions", 0.0)),
+                           stretch=float(spec.get("stretch", 0.0)))
     if kind in ("got10k", "otb", "sequences"):
         return SequenceSource(spec["root"])
     if kind == "images":

@@ -151,17 +151,23 @@ def test_write_benchmark_is_read_back_as_an_otb_dataset(tmp_path):
 CPUINFO = Path("/proc/cpuinfo")
 OPENCV_AVX512 = "avx512f" in cpu_flags(CPUINFO.read_text() if CPUINFO.exists() else "")
 SEED_2026_FRAME_2 = {
-    "day": {True: "f59bf1c06616ed618452e52ef85cdbd953ccc4cd08393c15e69228cc9b6c5ef9",
-            False: "276ee0b452a9730fe194f20deab46e72a96cec1c7e6f3f53f2796ff31cfaedae"}[OPENCV_AVX512],
+    "day": {
+        True: "f59bf1c06616ed618452e52ef85cdbd953ccc4cd08393c15e69228cc9b6c5ef9",
+        False: "276ee0b452a9730fe194f20deab46e72a96cec1c7e6f3f53f2796ff31cfaedae",
+    }[OPENCV_AVX512],
     "boxes": "c3d564b7289d639c82f95fcf754417f244941d0631cf4f54734bade0e62e8b64",
 }
 SEED_2026_NIGHT_FRAME_2 = {
-    True: ("eab4bfe0f347f5a3d4fe80c2d40ec4d77ae99ecf4a70daeea8358f1189957967",
-           "f84b05d23ecaeaa9b9b157002d3bb54c9c0c0eb195de43077e68eee094fa46b5"),
+    True: (
+        "eab4bfe0f347f5a3d4fe80c2d40ec4d77ae99ecf4a70daeea8358f1189957967",
+        "f84b05d23ecaeaa9b9b157002d3bb54c9c0c0eb195de43077e68eee094fa46b5",
+    ),
     False: ("11c8f9d70062e80023f8404e413c560c5fb7f5ed61d3d73800590ebb772fda46",),
 }[OPENCV_AVX512]
-CLASSIC_NIGHT = {True: "343e3ee18753c8575faacbe08d2a8bb03d850179b5181fef717bf0618ab481d1",
-                 False: "33adae34c5f0dd22b587548f915bed36b701c395ef2347c72278b044681f3be4"}[OPENCV_AVX512]
+CLASSIC_NIGHT = {
+    True: "343e3ee18753c8575faacbe08d2a8bb03d850179b5181fef717bf0618ab481d1",
+    False: "33adae34c5f0dd22b587548f915bed36b701c395ef2347c72278b044681f3be4",
+}[OPENCV_AVX512]
 
 
 def _sha(array: np.ndarray) -> str:
@@ -390,6 +396,53 @@ def test_a_companion_walks_beside_the_target_in_every_frame(library):
     again = random_library_scene(np.random.default_rng(3), library, "train", frames=60, companion=False)
     np.testing.assert_array_equal(plain.boxes, again.boxes)
     assert (plain.distractor is None) == (again.distractor is None)
+
+
+def test_a_stretched_target_is_drawn_and_boxed_as_stretched(library):
+    """`stretch`: the cut-out drawn taller or wider than photographed (often upright, like a walker), its
+    width swaying over the frames; the box still fits the pasted alpha to a pixel and its shape follows
+    the stretch. Off, the scenes are those of before the option."""
+    shapes, bases, checked = [], [], 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        scene = random_library_scene(rng, library, "test", frames=40, size=(320, 240), stretch=True)
+        target = scene.target
+        plain = target.cutout.shape
+        own = np.log(np.ptp(plain[:, 1]) / np.ptp(plain[:, 0]))
+        shapes.append(own + target.stretch[0])
+        bases.append(target.stretch[0])
+        assert np.ptp(target.stretch) > 0  # the sway of a gait
+        if scene.distractor is not None or scene.occluder is not None or scene.brightness.max() != 1:
+            continue
+        alpha_only = copy.copy(target)
+        alpha_only.pyramid = [np.dstack([level[..., 3]] * 4) for level in target.pyramid]
+        for i in (0, 39):
+            _, box = scene.render(i)
+            if box[2] < 12 or box[3] < 12:
+                continue
+            alpha = np.zeros((240, 320, 3), np.uint8)
+            alpha_only.draw(alpha, i)
+            ys, xs = np.nonzero(alpha[..., 0] > 127)
+            opaque = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], float)
+            truth = np.array([box[0], box[1], box[0] + box[2], box[1] + box[3]])
+            assert np.all(np.abs(opaque - truth) <= 1.0), (seed, i, opaque, truth)
+            if (
+                abs(target.angle[i]) < 0.05
+                and 0 < box[0]
+                and box[0] + box[2] < 320
+                and 0 < box[1]
+                and box[1] + box[3] < 240
+            ):
+                np.testing.assert_allclose(np.log(box[3] / box[2]), own + target.stretch[i], atol=0.15)
+            checked += 1
+    assert checked >= 8
+    upright = np.exp(shapes)  # height / width at frame 0
+    assert np.mean((upright >= 1.5) & (upright <= 4.0)) >= 0.5
+    assert np.all(np.abs(bases) <= np.log(3.5) + 1e-9) and np.mean(np.abs(bases) <= 0.3) >= 0.3
+    plain = random_library_scene(np.random.default_rng(5), library, "train", frames=30)
+    again = random_library_scene(np.random.default_rng(5), library, "train", frames=30, stretch=False)
+    np.testing.assert_array_equal(plain.boxes, again.boxes)
+    assert not plain.target.stretch.any()
 
 
 def test_library_scenes_keep_train_and_test_apart(monkeypatch):

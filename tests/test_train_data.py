@@ -153,11 +153,12 @@ def test_path_lamps_stand_beside_the_target_and_saturate():
     assert all(np.array_equal(u, v) for u, v in zip(a, b, strict=True))
 
 
-@pytest.mark.parametrize("spec", [{"companions": 1.5, "source": "library"}, {"companions": 0.5}])
-def test_companions_are_a_share_of_library_scenes(spec):
-    """Look-alikes beside the target (`companions`) come from the real-photo library's scenes only, as a share;
-    anything else is refused by name before a library is opened."""
+@pytest.mark.parametrize("option", ["companions", "stretch"])
+@pytest.mark.parametrize("value, source", [(1.5, "library"), (-0.1, "library"), (0.5, "skimage")])
+def test_library_scene_options_are_shares_of_library_scenes(option, value, source):
+    """Look-alikes beside the target (`companions`) and targets that are not rigid (`stretch`) come from the
+    real-photo library's scenes only, as a share; anything else is refused by name before a library is opened."""
     from dadiff.export.train_data import make_day_source
 
-    with pytest.raises(ValueError, match="companions is"):
-        make_day_source({"kind": "scenes", "split": "train", **spec})
+    with pytest.raises(ValueError, match=f"{option} is {value}"):
+        make_day_source({"kind": "scenes", "split": "train", "source": source, option: value})

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .geometry import polygon_area, rotation, visible_box
+from .geometry import place, polygon_area, rotation, visible_box
 from .paths import drone_path, fold, wave
 from .photos import check_split
 from .scene import (
@@ -164,9 +164,26 @@ class _CutoutLayer(Layer):
         left, top = x0 + xs.min() / ss, y0 + ys.min() / ss
         return np.array([left, top, x0 + (xs.max() + 1) / ss - left, y0 + (ys.max() + 1) / ss - top])
 
-    def __init__(self, cutout: _Cutout, centre: np.ndarray, size: np.ndarray, angle: np.ndarray) -> None:
+    def __init__(
+        self,
+        cutout: _Cutout,
+        centre: np.ndarray,
+        size: np.ndarray,
+        angle: np.ndarray,
+        stretch: np.ndarray | None = None,
+    ) -> None:
         super().__init__(cutout.shape, list(cutout.pyramid), centre, size, angle, np.ones(len(size), bool))
         self.cutout = cutout
+        # Per frame, log(height / width) added to the cut-out's own: a body that is not rigid. 0: as photographed.
+        self.stretch = np.zeros(len(size)) if stretch is None else np.asarray(stretch, np.float64)
+
+    def _axes(self, i: int) -> np.ndarray:
+        """The cut-out's x and y scale for frame i's stretch (area kept)."""
+        half = 0.5 * float(self.stretch[i])
+        return np.array([math.exp(-half), math.exp(half)])
+
+    def outline(self, i: int) -> np.ndarray:
+        return place(self.shape * self._axes(i), self.centre[i], self.size[i], self.angle[i])
 
     def draw(self, frame: np.ndarray, i: int) -> None:
         if not self.active[i]:
@@ -180,11 +197,13 @@ class _CutoutLayer(Layer):
         base = self.cutout.outline
         long_side = float(np.max(np.ptp(base, axis=0)))
         scale = self.size[i] / long_side  # level-0 px -> frame px
+        axes = self._axes(i)
         full = self.pyramid[0].shape
-        # The coarsest level whose pixels are no larger than the frame's (as `_paste` does).
-        level = next((p for p in reversed(self.pyramid) if max(p.shape[:2]) >= max(full[:2]) * scale), self.pyramid[0])
+        # The coarsest level whose pixels are no larger than the frame's (as `_paste` does), along either axis.
+        finest = max(full[:2]) * scale * float(axes.max())
+        level = next((p for p in reversed(self.pyramid) if max(p.shape[:2]) >= finest), self.pyramid[0])
         steps = np.array([full[1] / level.shape[1], full[0] / level.shape[0]])  # level px -> level-0 px
-        rot = scale * rotation(self.angle[i])
+        rot = scale * rotation(self.angle[i]) * axes[None, :]
         middle = (base.min(0) + base.max(0)) / 2
         linear = rot * steps[None, :]
         offset = self.centre[i] - (x0, y0) - 0.5 + rot @ (steps * 0.5 - middle)
@@ -219,8 +238,28 @@ def _walk_sizes(rng: np.random.Generator, zoom: np.ndarray, height: int, n: int)
     return np.clip(size * zoom / zoom[0], 5, 0.9 * height)
 
 
+def _stretch_path(rng: np.random.Generator, cutout: _Cutout, n: int) -> np.ndarray:
+    """Log(height / width) added to a cut-out over the frames, for a body that is not rigid: half of the time
+    to an upright walker's shape (height 1.5-4x the width; the library's cut-outs are mostly about as wide as
+    tall, people on real footage 2-4x taller than wide), else a mild stretch either way; on top, the sway of a
+    gait (width +-3-12 % over 12-40 frames). Never more than 3.5x the cut-out's own shape."""
+    width, height = np.ptp(cutout.outline, axis=0)
+    if rng.random() < 0.5:
+        base = rng.uniform(math.log(1.5), math.log(4.0)) - math.log(height / width)
+    else:
+        base = rng.uniform(-0.3, 0.3)
+    base = float(np.clip(base, -math.log(3.5), math.log(3.5)))
+    return base + wave(rng, n, rng.uniform(0.03, 0.12), (12, 40))
+
+
 def _cutout_layer(
-    rng: np.random.Generator, cutout: _Cutout, size: np.ndarray, width: int, height: int, n: int
+    rng: np.random.Generator,
+    cutout: _Cutout,
+    size: np.ndarray,
+    width: int,
+    height: int,
+    n: int,
+    stretch: np.ndarray | None = None,
 ) -> _CutoutLayer:
     """The cut-out moving about the frame (upright, slightly tilting), kept inside it whatever its size."""
     if rng.random() < 0.5:
@@ -228,15 +267,18 @@ def _cutout_layer(
     speed = rng.uniform(0.02, 0.2)
     ux = fold(rng.uniform(0, 1) + wave(rng, n, speed, (40, 200)), 0, 1)
     uy = fold(rng.uniform(0, 1) + wave(rng, n, speed * 0.7, (40, 200)), 0, 1)
-    margin = 0.6 * size + 4
+    reach = 1.0 if stretch is None else np.exp(np.abs(stretch) / 2)  # the stretched long side over the plain one
+    margin = 0.6 * size * reach + 4
     centre = np.stack(
         [margin + ux * np.maximum(width - 2 * margin, 0), margin + uy * np.maximum(height - 2 * margin, 0)], 1
     )
     angle = rng.uniform(-0.15, 0.15) + wave(rng, n, rng.uniform(0, 0.1), (60, 200), 1)
-    return _CutoutLayer(cutout, centre, size, angle)
+    return _CutoutLayer(cutout, centre, size, angle, stretch)
 
 
-def _companion_layer(rng: np.random.Generator, cutout: _Cutout, target: Layer, height: int, n: int) -> _CutoutLayer:
+def _companion_layer(
+    rng: np.random.Generator, cutout: _Cutout, target: Layer, height: int, n: int, stretch: np.ndarray | None = None
+) -> _CutoutLayer:
     """A cut-out that walks beside the target, 0.9-2.5 of its long side from it in a slowly turning direction,
     as the next person of a group or the next car of a queue does: the look-alike a tracker jumps to."""
     if rng.random() < 0.5:
@@ -246,7 +288,7 @@ def _companion_layer(rng: np.random.Generator, cutout: _Cutout, target: Layer, h
     centre = target.centre + reach[:, None] * np.stack([np.cos(heading), np.sin(heading)], 1)
     size = np.clip(target.size * rng.uniform(0.7, 1.3) * np.exp(wave(rng, n, 0.15, (60, 200), 1)), 5, 0.9 * height)
     angle = rng.uniform(-0.15, 0.15) + wave(rng, n, rng.uniform(0, 0.1), (60, 200), 1)
-    return _CutoutLayer(cutout, centre, size, angle)
+    return _CutoutLayer(cutout, centre, size, angle, stretch)
 
 
 def _usable(images: list, role: str, rng: np.random.Generator):
@@ -279,11 +321,14 @@ def random_library_scene(
     frames: int = 120,
     size: tuple[int, int] = (640, 360),
     companion: bool = False,
+    stretch: bool = False,
 ) -> Scene:
     """A random scene over the real-photo library: one of its backgrounds of `split` seen by a drone camera,
     a cut-out target of `split` (alpha-pasted, exact box), sometimes an occluder and a look-alike distractor
     (another cut-out of `split`). `companion`: the distractor always, walking beside the target, half the
-    time a copy of the target's own cut-out (training; the evaluation's scenes leave it off). `library`:
+    time a copy of the target's own cut-out (training; the evaluation's scenes leave it off). `stretch`: the
+    target not rigid, often upright like a walker (`_stretch_path`; a companion copy of it stretched alike;
+    training, off in the evaluation's scenes). `library`:
     what `library.open_library()` returns. Deterministic from the generator state and the library's contents."""
     check_split(split)
     width, height = frame_size(size, frames)
@@ -295,12 +340,15 @@ def random_library_scene(
     cameras, zoom = drone_path(rng, background.shape, width, height, frames)
     cutouts = _usable(targets, "target", rng)
     target_cutout = next(cutouts)
-    target = _cutout_layer(rng, target_cutout, _walk_sizes(rng, zoom, height, frames), width, height, frames)
+    sizes = _walk_sizes(rng, zoom, height, frames)
+    shape = _stretch_path(rng, target_cutout, frames) if stretch else None  # no draw when off: same scenes
+    target = _cutout_layer(rng, target_cutout, sizes, width, height, frames, shape)
     occluder = random_occluder(rng, next(photos, photo), target, frames)  # textured by another background
     distractor = None
     if companion:
         look_alike = target_cutout if rng.random() < 0.5 else next(cutouts, target_cutout)
-        distractor = _companion_layer(rng, look_alike, target, height, frames)
+        alike = shape if look_alike is target_cutout else None  # a copy of the target walks as it does
+        distractor = _companion_layer(rng, look_alike, target, height, frames, alike)
     else:
         look_alike = next(cutouts, None) if len(targets) > 1 and rng.random() < 0.3 else None
         if look_alike is not None:
