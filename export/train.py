@@ -75,6 +75,7 @@ class TrainConfig:
     lambda_align: float = 1.0
     adversarial: bool = True              # ablation switches (Table IV)
     align_loss: bool = True
+    block: bool = True                    # false: stage dadiff without the DaDiff block, L_adv on the neck features
     align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output;
     #                                       "restore": aligned night features vs the paired day neck features
     search_scale: float = CropConfig.search_scale  # search crops rescaled by exp(U(-s, s)) around the target
@@ -123,6 +124,9 @@ class TrainConfig:
         if cfg.align_target in ("chain", "restore") and cfg.night is not None:
             raise ValueError(f"{path}: align_target '{cfg.align_target}' needs night rendered from the day frames "
                              f"(paired); drop 'night' or use align_target 'eps'")
+        if not cfg.block and (cfg.stage != "dadiff" or not cfg.adversarial):
+            raise ValueError(f"{path}: block = false is the dadiff stage's adversary alone (on the neck features); "
+                             f"it needs stage 'dadiff' and adversarial = true")
         if cfg.lambda_night_distill and (cfg.teacher is None or cfg.night is not None):
             raise ValueError(f"{path}: lambda_night_distill needs a teacher and night rendered from the day frames "
                              f"(paired); set 'teacher' and drop 'night'")
@@ -137,7 +141,7 @@ class TrainConfig:
 def model_config(cfg: TrainConfig) -> ModelConfig:
     base = default_config(cfg.family)
     mc = replace(base, **cfg.model) if cfg.model else base
-    return replace(mc, use_dadiff=cfg.stage == "dadiff")
+    return replace(mc, use_dadiff=cfg.stage == "dadiff" and cfg.block)
 
 
 def build_network(cfg: TrainConfig) -> DaDiffNet:
@@ -362,6 +366,8 @@ class Trainer:
         return logs
 
     def state_timesteps(self, n_states: int) -> list[int]:
+        if not self.net.cfg.use_dadiff:  # no block: the states are the neck features, judged as a chain's output
+            return [-1] * n_states
         steps = chain_timesteps(self.net.sampler.start_t, self.net.sampler.timesteps)
         return (steps * (n_states // len(steps)))[:n_states]
 

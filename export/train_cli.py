@@ -47,6 +47,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("lambda_align", "1.0", "alignment loss weight"),
     ("adversarial", "true", "ablation switch: the adversarial loss"),
     ("align_loss", "true", "ablation switch: the alignment loss"),
+    ("block", "true", "false: dadiff stage without the DaDiff block, the adversary judging the neck features"),
     ("align_target", '"eps"', '"eps" (paper eq. 6), "chain": sampler output on night vs on the paired day frame, '
      '"restore": aligned night features vs the paired day neck features'),
     ("search_scale", "0.18", "search crops rescaled by exp(U(-s, s)) around the target (0-1)"),

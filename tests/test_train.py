@@ -149,6 +149,34 @@ def test_baseline_stage_bypasses_the_dadiff_block(tmp_path, image_folder):
     assert not trainer.net.cfg.use_dadiff and trainer.disc is None
 
 
+def test_adversary_without_the_block_judges_the_neck_features_and_moves_the_backbone(tmp_path, image_folder):
+    """`block = false`: the dadiff stage's adversary alone, on the neck features (Table IV's question whether
+    the diffusion or the adversary gains): no block in the network, no L_align, and generator steps against a
+    fixed discriminator make the night neck look more like day."""
+    cfg = config(tmp_path, image_folder, block=False, disc_lr=0.0, lambda_trc=0.0, lambda_adv=1.0)
+    trainer = Trainer(cfg)
+    assert not trainer.net.cfg.use_dadiff and trainer.disc is not None
+    batch = next(iter(data_loader(cfg, trainer.net, 0)))
+    before = losses_on(trainer, batch)["adv"]
+    neck_w = next(p for n, p in trainer.net.named_parameters() if n.startswith("neck.")).detach().clone()
+    for _ in range(3):
+        logs = trainer.step_on(batch)
+    assert logs["align"] == 0 and "adv" in logs
+    assert losses_on(trainer, batch)["adv"] < before
+    assert not torch.equal(neck_w, next(p for n, p in trainer.net.named_parameters() if n.startswith("neck.")))
+    assert trainer.state_timesteps(2) == [-1, -1]
+
+
+@pytest.mark.parametrize("body", ["stage = 'baseline'\nblock = false\n", "adversarial = false\nblock = false\n"])
+def test_block_off_needs_the_dadiff_stage_and_its_adversary(tmp_path, capsys, body):
+    from dadiff.export.train import main
+
+    bad = tmp_path / "noblock.toml"
+    bad.write_text("[train]\n" + body)
+    assert main(["--config", str(bad)]) == 2
+    assert "block = false is the dadiff stage's adversary alone" in capsys.readouterr().err
+
+
 TEACHER = Path(__file__).resolve().parents[2] / "shared" / "weights" / "nanotrack" / "v3"
 
 
