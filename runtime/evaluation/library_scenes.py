@@ -242,7 +242,7 @@ def _stretch_path(rng: np.random.Generator, cutout: _Cutout, n: int) -> np.ndarr
     """Log(height / width) added to a cut-out over the frames, for a body that is not rigid: half of the time
     to an upright walker's shape (height 1.5-4x the width; the library's cut-outs are mostly about as wide as
     tall, people on real footage 2-4x taller than wide), else a mild stretch either way; on top, the sway of a
-    gait (width +-3-12 % over 12-40 frames). Never more than 3.5x the cut-out's own shape."""
+    gait (width +-3-12 % over 12-40 frames). The lasting part is at most 3.5x the cut-out's own shape."""
     width, height = np.ptp(cutout.outline, axis=0)
     if rng.random() < 0.5:
         base = rng.uniform(math.log(1.5), math.log(4.0)) - math.log(height / width)
