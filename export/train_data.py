@@ -130,10 +130,9 @@ class SceneSource:
 
         if source not in ("skimage", "library"):
             raise ValueError(f"unknown scene source {source!r}; expected skimage or library")
-        if not 0 <= companions <= 1 or (companions and source != "library"):
-            raise ValueError(f"companions is {companions}; expected a share 0-1 of library scenes")
-        if not 0 <= stretch <= 1 or (stretch and source != "library"):
-            raise ValueError(f"stretch is {stretch}; expected a share 0-1 of library scenes")
+        for option, share in (("companions", companions), ("stretch", stretch)):
+            if not 0 <= share <= 1 or (share and source != "library"):
+                raise ValueError(f"{option} is {share}; expected a share 0-1 of library scenes")
         try:
             self.photos = load_photos(split) if source == "skimage" else None
             self.library = open_scene_library() if source == "library" else None
