@@ -287,8 +287,9 @@ def _export(args: argparse.Namespace, out: Path, name: str, label: str | None = 
     files = ", ".join(f"{f} {_mb(n)}" for f, n in report.files.items())
     parity = ", ".join(f"{k} {v:.1e}" for k, v in report.parity_abs.items())
     print(f"  wrote {label or str(out) + '/'}: {files}")
-    print(f"  GFLOP per search frame {report.gflop_search:.2f}, template (once) {report.gflop_template:.2f}; "
-          f"DDIM {len(sampler.timesteps)} steps, timesteps {sampler.timesteps}, start t {sampler.start_t}")
+    block = (f"DDIM {len(sampler.timesteps)} steps, timesteps {sampler.timesteps}, start t {sampler.start_t}"
+             if loaded.config.use_dadiff else "no DaDiff block")
+    print(f"  GFLOP per search frame {report.gflop_search:.2f}, template (once) {report.gflop_template:.2f}; {block}")
     print(f"  parity torch vs onnxruntime (max-abs, relative where |output| > 1): {report.max_parity:.1e} "
           f"(tolerance {args.tolerance:g}) OK; max-abs per output [{parity}]")
     print(f"  export time {report.seconds:.1f} s", flush=True)

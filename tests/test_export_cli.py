@@ -68,6 +68,21 @@ def test_step_count_is_a_config_value(tmp_path, capsys, lite_checkpoint):
     assert meta["ddim_steps"] == "4" and json.loads(meta["ddim_timesteps"]) == [15, 10, 5, 0]
 
 
+def test_a_network_without_the_block_says_so(tmp_path, capsys):
+    from dataclasses import replace
+
+    from dadiff.export.checkpoint import save_checkpoint
+    from dadiff.export.config import lite_config
+    from dadiff.export.network import build_model
+
+    torch.manual_seed(0)
+    path = tmp_path / "baseline.pt"
+    save_checkpoint(path, build_model(replace(lite_config(), use_dadiff=False), pretrained_backbone=False))
+    code, out, err = _run(capsys, str(path), "-o", str(tmp_path / "m"))
+    assert code == 0, err
+    assert "no DaDiff block" in out and "DDIM" not in out
+
+
 def test_parity_failure_exits_nonzero_and_leaves_no_files(tmp_path, capsys, lite_checkpoint):
     code, out, err = _run(capsys, str(lite_checkpoint), "-o", str(tmp_path / "m"), "--tolerance", "0")
     assert code == 1
