@@ -1,0 +1,52 @@
+"""The example training configs README lists: each one loads, builds its network config and starts from
+something that exists (ImageNet, a committed state in export/resume, or another config's final.pt)."""
+
+from __future__ import annotations
+
+import re
+from fnmatch import fnmatch
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+
+from dadiff.export.train import TrainConfig, model_config  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIGS = sorted((REPO / "export" / "configs").glob("*.toml"))
+OUTS = {TrainConfig.from_toml(p).out for p in CONFIGS}
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)
+def test_config_loads_and_starts_from_something_that_exists(path: Path) -> None:
+    cfg = TrainConfig.from_toml(path)
+    assert model_config(cfg).family == cfg.family
+    if cfg.init == "imagenet":
+        return
+    init = Path(cfg.init)
+    chained = init.name == "final.pt" and str(init.parent) in OUTS and str(init.parent) != cfg.out
+    assert (REPO / init).is_file() or chained, f"{path.name}: init {cfg.init} is neither committed nor a run's final.pt"
+
+
+def test_every_config_writes_its_own_run_folder() -> None:
+    assert len(OUTS) == len(CONFIGS)
+
+
+def _named_patterns(text: str) -> list[str]:
+    """Config names README writes out, or as `mobile-*-x.toml` / `mobile-{dadiff,ablation}-x.toml`."""
+    patterns = []
+    for token in re.findall(r"[\w*{},.-]+\.toml", text):
+        head, brace, rest = token.partition("{")
+        if not brace:
+            patterns.append(token)
+            continue
+        options, _, tail = rest.partition("}")
+        patterns += [head + option + tail for option in options.split(",")]
+    return patterns
+
+
+def test_readme_names_every_config() -> None:
+    patterns = _named_patterns((REPO / "README.md").read_text())
+    missing = [p.name for p in CONFIGS if not any(fnmatch(p.name, pat) for pat in patterns)]
+    assert not missing, f"README never names {missing}"
