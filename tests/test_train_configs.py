@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 from fnmatch import fnmatch
+from functools import cache
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((REPO / "export" / "configs").glob("*.toml"))
 
 
+@cache
 def _outs() -> dict[str, list[str]]:
     """Run folder -> the configs writing it (loaded here, not at collection: a broken config fails its own test)."""
     outs: dict[str, list[str]] = {}
