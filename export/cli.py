@@ -76,6 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="output model folder (default: ./<name>; ./<name>-int8 with --quantize)")
     p.add_argument("--name", help="model name stored in the metadata (default: the checkpoint's file stem)")
     p.add_argument("--steps", type=int, help="DDIM steps K to unroll, 1..20 (default: the checkpoint's, 2)")
+    p.add_argument("--search-size", type=_count(1), metavar="PX",
+                   help="search crop side the graphs take, the trained size or smaller by a multiple of twice the "
+                        "stride (dadiff-mobile: 255 trained, 223, 191, 159; default: the trained size)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1} (default {DEFAULT_OPSET})")
     p.add_argument("--family", choices=FAMILIES, help="require this model family (default: any)")
@@ -264,7 +267,8 @@ def _refuse_folder(spec: str) -> None:
 def _refuse_checkpoint_options(args: argparse.Namespace) -> None:
     given = [opt for opt, value, default in (
         ("--name", args.name, None), ("--steps", args.steps, None), ("--family", args.family, None),
-        ("--preset", args.preset, None), ("--opset", args.opset, DEFAULT_OPSET),
+        ("--preset", args.preset, None), ("--search-size", args.search_size, None),
+        ("--opset", args.opset, DEFAULT_OPSET),
         ("--tolerance", args.tolerance, PARITY_TOLERANCE),
     ) if value != default]
     if given:
@@ -275,9 +279,12 @@ def _export(args: argparse.Namespace, out: Path, name: str, label: str | None = 
     """The fp32 export of a checkpoint, parity-gated; prints what it wrote."""
     from .checkpoint import load_checkpoint
     from .onnx_export import ExportError, export_model
+    from .search_size import with_search_size
 
     try:
         loaded = load_checkpoint(args.checkpoint, family=args.family, steps=args.steps, preset=args.preset)
+        if args.search_size is not None:
+            loaded = with_search_size(loaded, args.search_size)
         print(f"{PROG}: {args.checkpoint}: {loaded.config.family} ({loaded.source} format, "
               f"sha256 {loaded.sha256[:12]}…)", flush=True)
         report = export_model(loaded, out, name, args.opset, args.tolerance)
@@ -289,7 +296,9 @@ def _export(args: argparse.Namespace, out: Path, name: str, label: str | None = 
     print(f"  wrote {label or str(out) + '/'}: {files}")
     block = (f"DDIM {len(sampler.timesteps)} steps, timesteps {sampler.timesteps}, start t {sampler.start_t}"
              if loaded.config.use_dadiff else "no DaDiff block")
-    print(f"  GFLOP per search frame {report.gflop_search:.2f}, template (once) {report.gflop_template:.2f}; {block}")
+    tr = loaded.config.tracker
+    print(f"  search crop {tr.instance_size} px, score map {tr.score_size} x {tr.score_size}; GFLOP per search frame "
+          f"{report.gflop_search:.2f}, template (once) {report.gflop_template:.2f}; {block}")
     print(f"  parity torch vs onnxruntime (max-abs, relative where |output| > 1): {report.max_parity:.1e} "
           f"(tolerance {args.tolerance:g}) OK; max-abs per output [{parity}]")
     print(f"  export time {report.seconds:.1f} s", flush=True)
