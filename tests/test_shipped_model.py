@@ -34,7 +34,8 @@ def test_default_checkpoint_reproduces_the_shipped_graphs() -> None:
     onnx_side = OnnxBackend(folder, threads=1)
     rng = np.random.default_rng(11)
     z = rng.integers(0, 256, (1, 3, 127, 127)).astype(np.float32)
-    x = rng.integers(0, 256, (1, 3, 255, 255)).astype(np.float32)
+    size = onnx_side.input_buffer.shape[-1]  # the search crop the default ships at (223 px)
+    x = rng.integers(0, 256, (1, 3, size, size)).astype(np.float32)
     ref_cls, ref_loc = torch_side.search(x, torch_side.template(z))
     cls, loc = onnx_side.search(x, onnx_side.template(z))
     assert np.abs(cls - ref_cls).max() < 1e-4
