@@ -160,6 +160,11 @@ def build_network(cfg: TrainConfig) -> DaDiffNet:
                                                 if k.startswith("align_track.") or k == "align_scale"})
     if differ:
         raise ValueError(f"{cfg.init}: does not fit the configured model: {', '.join(differ[:5])}")
+    reshaped = [f"{k} {tuple(v.shape)} (the model's {tuple(own[k].shape)})" for k, v in source.items()
+                if k in own and v.shape != own[k].shape]
+    if reshaped:  # e.g. a model folder's checkpoint set to a smaller search crop than training uses
+        raise ValueError(f"{cfg.init}: holds tensors of other shapes than the configured model: "
+                         f"{', '.join(reshaped[:3])}; start from a training state (export/resume/) instead")
     net.load_state_dict({k: v for k, v in source.items() if k in own}, strict=False)
     return net
 

@@ -261,6 +261,19 @@ def test_bad_config_is_one_line(tmp_path, capsys):
     assert err.count("\n") == 1 and "unknown config keys: bogus" in err
 
 
+def test_a_checkpoint_set_to_a_smaller_search_crop_is_refused_as_a_start(tmp_path, capsys):
+    """The shipped default's checkpoint holds 14 x 14 search start noise (223 px); training crops 255 px."""
+    from dadiff.export.train import main
+    from dadiff.models import resolve
+
+    cfg = tmp_path / "from-default.toml"
+    cfg.write_text(f"[train]\nout = '{tmp_path / 'run'}'\nstage = 'dadiff'\nfamily = 'dadiff-mobile'\nsteps = 1\n"
+                   f"model = {{ align_residual = true }}\ninit = '{resolve('dadiff-mobile') / 'checkpoint.pt'}'\n")
+    assert main(["--config", str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "e_xf (1, 48, 14, 14) (the model's (1, 48, 16, 16))" in err
+
+
 def test_ddp_two_processes_keep_weights_in_sync(tmp_path, image_folder):
     toml = tmp_path / "ddp.toml"
     toml.write_text(f"""[train]
