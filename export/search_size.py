@@ -19,9 +19,12 @@ from torch import nn
 from .checkpoint import CheckpointError, LoadedCheckpoint
 
 
-def search_sizes(trained: int, stride: int, exemplar: int) -> list[int]:
-    """Search sizes a network trained at `trained` can be exported at, largest first (`trained` included)."""
-    return list(range(trained, exemplar, -2 * stride))
+def search_sizes(current: int, stride: int, exemplar: int) -> list[int]:
+    """Search sizes a network set up for `current` px can be exported at, largest first (`current` included).
+
+    Larger ones are not offered: the stored start noise covers the current map only.
+    """
+    return list(range(current, exemplar, -2 * stride))
 
 
 def _score_side(net: nn.Module, exemplar: int, size: int) -> tuple[int, int]:
@@ -51,10 +54,14 @@ def with_search_size(loaded: LoadedCheckpoint, size: int) -> LoadedCheckpoint:
     tr = cfg.tracker
     if size == tr.instance_size:
         return loaded
+    if size > tr.instance_size:
+        raise CheckpointError(
+            f"search size {size} is larger than this {cfg.family} checkpoint's {tr.instance_size} px: its stored "
+            f"search start noise covers that map only; export from a checkpoint at {size} px (a training state)")
     allowed = search_sizes(tr.instance_size, tr.stride, tr.exemplar_size)
     if size not in allowed:
         raise CheckpointError(
-            f"search size {size} does not fit this {cfg.family} network (trained at {tr.instance_size} px, "
+            f"search size {size} does not fit this {cfg.family} checkpoint (search crop {tr.instance_size} px, "
             f"stride {tr.stride}): its score map must stay odd and centred, so the size must be one of "
             f"{', '.join(map(str, allowed))}")
     side, score = _score_side(net, tr.exemplar_size, size)

@@ -47,6 +47,9 @@ def test_smaller_search_takes_the_centre_of_the_start_noise(mobile_checkpoint):
 def test_a_size_that_would_off_centre_the_map_is_refused(mobile_checkpoint):
     with pytest.raises(CheckpointError, match="must be one of 255, 223, 191, 159"):
         with_search_size(load_checkpoint(mobile_checkpoint), 239)
+    small = with_search_size(load_checkpoint(mobile_checkpoint), 223)
+    with pytest.raises(CheckpointError, match="larger than this dadiff-mobile checkpoint's 223 px"):
+        with_search_size(small, 255)
 
 
 def test_cli_refuses_a_bad_size_in_one_line(tmp_path, capsys, mobile_checkpoint):
