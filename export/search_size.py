@@ -27,19 +27,18 @@ def search_sizes(current: int, stride: int, exemplar: int) -> list[int]:
     return list(range(current, exemplar, -2 * stride))
 
 
-def _score_side(net: nn.Module, exemplar: int, size: int) -> tuple[int, int]:
-    """(search feature side, score map side) of the network on a size x size search crop."""
+def _feature_side(net: nn.Module, size: int) -> int:
+    """Side of the search feature map the network makes from a size x size crop."""
+    with torch.no_grad():
+        return net.neck(net.backbone_features(torch.zeros(1, 3, size, size)), False)[0].shape[-1]
+
+
+def _score_side(net: nn.Module, exemplar: int, size: int) -> int:
+    """Side of the score map the network gives on a size x size search crop."""
     with torch.no_grad():
         kcls, kloc = net.head.kernels(net.template(torch.zeros(1, 3, exemplar, exemplar)))
-        x = torch.zeros(1, 3, size, size)
-        side = net.neck(net.backbone_features(x), False)[0].shape[-1]
-        noise = net.e_xf
-        net.e_xf = _centre(noise, side)  # the search branch needs start noise of its own map size
-        try:
-            cls, _ = net.track(x, kcls, kloc)
-        finally:
-            net.e_xf = noise
-    return side, cls.shape[-1]
+        cls, _ = net.track(torch.zeros(1, 3, size, size), kcls, kloc)
+    return cls.shape[-1]
 
 
 def _centre(noise: torch.Tensor, side: int) -> torch.Tensor:
@@ -64,12 +63,15 @@ def with_search_size(loaded: LoadedCheckpoint, size: int) -> LoadedCheckpoint:
             f"search size {size} does not fit this {cfg.family} checkpoint (search crop {tr.instance_size} px, "
             f"stride {tr.stride}): its score map must stay odd and centred, so the size must be one of "
             f"{', '.join(map(str, allowed))}")
-    side, score = _score_side(net, tr.exemplar_size, size)
+    side = _feature_side(net, size)
+    noise = net.e_xf
+    net.e_xf = _centre(noise, side)  # the search branch needs start noise of its own map size
+    score = _score_side(net, tr.exemplar_size, size)
     expected = tr.score_size - (tr.instance_size - size) // tr.stride
     if score != expected:
+        net.e_xf = noise
         raise CheckpointError(f"at search size {size} this network gives a {score} x {score} score map, "
                               f"not the {expected} x {expected} the decoder's grid needs")
-    net.e_xf = _centre(net.e_xf, side)
     new_cfg = replace(cfg, search_feature_size=side,
                       tracker=replace(tr, instance_size=size, score_size=score))
     net.cfg = new_cfg
