@@ -104,13 +104,18 @@ def _names(keys: list[str], limit: int = 5) -> str:
     return shown + (f", … ({len(keys) - limit} more)" if len(keys) > limit else "")
 
 
+def shape_mismatches(own: dict[str, torch.Tensor], sd: dict[str, torch.Tensor]) -> list[str]:
+    """'key [its shape] vs model [the model's]' for every key both hold with different shapes."""
+    return [f"{k} {list(sd[k].shape)} vs model {list(own[k].shape)}"
+            for k in own if k in sd and sd[k].shape != own[k].shape]
+
+
 def load_state_dict_strict(model: DaDiffNet, sd: dict[str, torch.Tensor], path: Path) -> None:
     """Like load_state_dict(strict=True) but lists every problem by name on one line."""
     own = model.state_dict()
     missing = [k for k in own if k not in sd]
     unexpected = [k for k in sd if k not in own]
-    shapes = [f"{k} {list(sd[k].shape)} vs model {list(own[k].shape)}"
-              for k in own if k in sd and sd[k].shape != own[k].shape]
+    shapes = shape_mismatches(own, sd)
     problems = []
     if missing:
         problems.append(f"missing {len(missing)} key(s): {_names(missing)}")

@@ -25,7 +25,7 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 
-from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint
+from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint, shape_mismatches
 from .config import ModelConfig, default_config, is_lite0
 from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
 from .losses import (
@@ -160,8 +160,7 @@ def build_network(cfg: TrainConfig) -> DaDiffNet:
                                                 if k.startswith("align_track.") or k == "align_scale"})
     if differ:
         raise ValueError(f"{cfg.init}: does not fit the configured model: {', '.join(differ[:5])}")
-    reshaped = [f"{k} {tuple(v.shape)} (the model's {tuple(own[k].shape)})" for k, v in source.items()
-                if k in own and v.shape != own[k].shape]
+    reshaped = shape_mismatches(own, source)
     if reshaped:  # e.g. a model folder's checkpoint set to a smaller search crop than training uses
         raise ValueError(f"{cfg.init}: holds tensors of other shapes than the configured model: "
                          f"{', '.join(reshaped[:3])}; start from a training state (export/resume/) instead")

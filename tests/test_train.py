@@ -271,7 +271,7 @@ def test_a_checkpoint_set_to_a_smaller_search_crop_is_refused_as_a_start(tmp_pat
                    f"model = {{ align_residual = true }}\ninit = '{resolve('dadiff-mobile') / 'checkpoint.pt'}'\n")
     assert main(["--config", str(cfg)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "e_xf (1, 48, 14, 14) (the model's (1, 48, 16, 16))" in err
+    assert err.count("\n") == 1 and "e_xf [1, 48, 14, 14] vs model [1, 48, 16, 16]" in err
 
 
 def test_ddp_two_processes_keep_weights_in_sync(tmp_path, image_folder):
