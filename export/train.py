@@ -543,6 +543,8 @@ def main(argv: list[str] | None = None) -> int:
         cfg = TrainConfig.from_toml(args.config)
         if args.out:
             cfg.out = args.out
+        if args.seed is not None:
+            cfg.seed = args.seed
         trainer = run(cfg, args.max_steps, device=args.device, max_minutes=args.max_minutes)
     except (ValueError, CheckpointError) as e:
         print(f"dadiff-train: error: {e}", file=sys.stderr)

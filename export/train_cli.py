@@ -86,6 +86,16 @@ def _positive(kind: type) -> object:
     return parse
 
 
+def _whole(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog=PROG, description="The paper's two-stage training, resumable, single process or "
                       "torchrun (needs the export extra: torch).", epilog=config_help(),
@@ -94,6 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=_positive(int),
                    help="stop after this many steps of this run (resume later; default: run to 'steps')")
     p.add_argument("--out", help="override the config's output folder")
+    p.add_argument("--seed", type=_whole, help="override the config's seed (a second run of one recipe: use "
+                   "another --out too)")
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
     p.add_argument("--max-minutes", type=_positive(float),
                    help="stop after this many minutes of this run (resume later; default: no limit)")

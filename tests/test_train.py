@@ -261,6 +261,25 @@ def test_bad_config_is_one_line(tmp_path, capsys):
     assert err.count("\n") == 1 and "unknown config keys: bogus" in err
 
 
+def test_seed_and_out_on_the_command_line_override_the_config(tmp_path, image_folder, capsys):
+    """A second run of one recipe: the same TOML, another seed and folder; the state records the seed used."""
+    from dadiff.export.checkpoint import read_checkpoint_file
+    from dadiff.export.train import main
+
+    toml = tmp_path / "recipe.toml"
+    toml.write_text(f"[train]\nout = '{tmp_path / 'first'}'\nstage = 'baseline'\nsteps = 1\nbatch_size = 2\n"
+                    f"seed = 3\nday = [{{ kind = 'images', root = '{image_folder}' }}]\n")
+    assert main(["--config", str(toml), "--seed", "11", "--out", str(tmp_path / "second")]) == 0
+    assert not (tmp_path / "first").exists()
+    assert read_checkpoint_file(tmp_path / "second" / "final.pt")["train_config"]["seed"] == 11
+    capsys.readouterr()  # the run's progress bar
+    with pytest.raises(SystemExit) as stop:
+        main(["--config", str(toml), "--seed", "-1"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--seed" in err and "'-1'" in err
+
+
 def test_a_checkpoint_set_to_a_smaller_search_crop_is_refused_as_a_start(tmp_path, capsys):
     """The shipped default's checkpoint holds 14 x 14 search start noise (223 px); training crops 255 px."""
     from dadiff.export.train import main
