@@ -73,27 +73,20 @@ def config_help() -> str:
             f"input (one '{PROG}: error:' line), 130 interrupted.")
 
 
-def _positive(kind: type) -> object:
+def _positive(kind: type, zero: bool = False) -> object:
+    """An argparse type: a finite number of `kind` above 0 (or at least 0 with `zero`)."""
+    least = "non-negative" if zero else "positive"
+
     def parse(text: str) -> int | float:
         try:
             value = kind(text)
         except ValueError:
-            value = 0
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}")
+            value = -1
+        if not (math.isfinite(value) and (value >= 0 if zero else value > 0)):
+            raise argparse.ArgumentTypeError(f"expected a {least} {kind.__name__}, got {text!r}")
         return value
 
     return parse
-
-
-def _whole(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -104,8 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=_positive(int),
                    help="stop after this many steps of this run (resume later; default: run to 'steps')")
     p.add_argument("--out", help="override the config's output folder")
-    p.add_argument("--seed", type=_whole, help="override the config's seed (a second run of one recipe: use "
-                   "another --out too)")
+    p.add_argument("--seed", type=_positive(int, zero=True),
+                   help="override the config's seed (a second run of one recipe: use another --out too)")
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
     p.add_argument("--max-minutes", type=_positive(float),
                    help="stop after this many minutes of this run (resume later; default: no limit)")
