@@ -9,6 +9,7 @@ on the fly, so nothing needs to fit in memory.
 
 from __future__ import annotations
 
+import fnmatch
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -189,11 +190,14 @@ class SceneSource:
 
 class SequenceSource:
     """Two frames of one sequence from GOT-10k (`groundtruth.txt`) or OTB/UAV123 (`groundtruth_rect.txt`,
-    frames in `img/`) folders under a root."""
+    frames in `img/`) folders under a root; `match` keeps the folders whose name matches it (`*_day`: the day
+    half of a benchmark that `dadiff-eval video` or `pseudo-label` wrote; training renders its own nights)."""
 
-    def __init__(self, root: str | Path, max_gap: int = 100) -> None:
+    def __init__(self, root: str | Path, max_gap: int = 100, match: str = "*") -> None:
         self.sequences = []
         for gt in sorted(Path(root).rglob("groundtruth*.txt")):
+            if not fnmatch.fnmatchcase(gt.parent.name, match):
+                continue
             folder = gt.parent / "img" if (gt.parent / "img").is_dir() else gt.parent
             frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
             try:
@@ -205,7 +209,8 @@ class SequenceSource:
             if len(valid) >= 2:
                 self.sequences.append((frames, boxes, valid))
         if not self.sequences:
-            raise ValueError(f"{root}: no sequence folders with groundtruth.txt / groundtruth_rect.txt and frames")
+            raise ValueError(f"{root}: no sequence folders matching {match!r} with groundtruth.txt / "
+                             "groundtruth_rect.txt and frames")
         self.max_gap = max_gap
 
     def sample(self, rng: np.random.Generator):
@@ -272,7 +277,7 @@ def make_day_source(spec: dict):
                            source=spec.get("source", "skimage"), companions=float(spec.get("companions", 0.0)),
                            stretch=float(spec.get("stretch", 0.0)))
     if kind in ("got10k", "otb", "sequences"):
-        return SequenceSource(spec["root"])
+        return SequenceSource(spec["root"], match=spec.get("match", "*"))
     if kind == "images":
         return ImageFolderSource(spec["root"])
     raise ValueError(f"unknown day data kind {kind!r}; expected scenes, got10k, otb or images")

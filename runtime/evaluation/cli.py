@@ -6,6 +6,7 @@ dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
+dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
 dadiff-eval tune --model M --dataset D [--dataset D2] [--sequences GLOB] [--grid KEY=V1,V2 ...] [--out trials.csv]
@@ -26,6 +27,7 @@ from ..errors import InputError, ModelError, OneLineParser
 from ..sources import quiet_opencv
 from .anatomy import anatomy, format_anatomy, format_honesty, grey_bins, honesty
 from .datasets import Dataset, DatasetError, load_dataset
+from .detection_tracks import LinkSettings, write_detection_benchmark
 from .evaluate import (
     EvalError,
     OpenCVTracker,
@@ -65,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog=PROG, description="One-pass evaluation of single-object trackers.",
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{run,score,anatomy,generate,video,data,tune}")
+    sub = parser.add_subparsers(dest="command", required=True,
+                                metavar="{run,score,anatomy,generate,video,pseudo-label,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -127,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
         "default: classic for skimage, real for library",
     )
     _add_video_parser(sub)
+    _add_pseudo_label_parser(sub)
     _add_data_parser(sub)
     _add_tune_parser(sub)
     return parser
@@ -146,6 +150,33 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--threshold", type=positive_int, default=30,
                        help="grey-level difference from the background that counts as moving (default 30)")
     video.add_argument("--min-area", type=positive_int, default=150, help="smallest box in px (default 150)")
+
+
+def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
+    label = sub.add_parser("pseudo-label", help="day and night sequences from any video (moving camera too), its "
+                           "people linked from a detector's per-frame boxes (OTB layout)")
+    label.add_argument("--video", required=True, type=Path, help="video file (or folder of frames)")
+    label.add_argument("--detections", required=True, type=Path,
+                       help="the detector's boxes as a MOTChallenge det.txt: frame,id,x,y,w,h,score per line, "
+                       "frames from 1")
+    label.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    label.add_argument("--seed", type=int, default=0, help="seed of the night cameras and lights (default 0)")
+    label.add_argument("--min-frames", type=positive_int, default=30, help="shortest sequence (default 30)")
+    label.add_argument("--max-frames", type=positive_int, default=150, help="longest sequence (default 150)")
+    label.add_argument("--min-score", type=float, default=0.35, help="detections below are ignored (default 0.35)")
+    label.add_argument("--min-height", type=float, default=24.0, help="smallest box height in px (default 24)")
+    label.add_argument("--aspect", type=_aspect_range, default=(1.2, 5.0), metavar="MIN-MAX",
+                       help="height over width a box must have (default 1.2-5: upright people; 0.2-5: any object)")
+
+
+def _aspect_range(text: str) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in text.split("-"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MIN-MAX such as 1.2-5, got '{text}'") from None
+    if not 0 < low < high:
+        raise argparse.ArgumentTypeError(f"expected 0 < MIN < MAX, got '{text}'")
+    return low, high
 
 
 def _add_tune_parser(sub: argparse._SubParsersAction) -> None:
@@ -361,9 +392,13 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_video(args: argparse.Namespace) -> int:
+def _check_sequence_lengths(args: argparse.Namespace) -> None:
     if args.max_frames < args.min_frames:
         raise SceneError(f"--max-frames {args.max_frames} is below --min-frames {args.min_frames}")
+
+
+def cmd_video(args: argparse.Namespace) -> int:
+    _check_sequence_lengths(args)
     if not 0 <= args.min_aspect < 100:
         raise SceneError(f"--min-aspect {args.min_aspect} must be in [0, 100)")
     if args.threshold > 254:
@@ -412,6 +447,22 @@ def _pack(cache: Path, args: argparse.Namespace) -> int:
     size = counts.pop("bytes")
     parts = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
     print(f"{PROG}: packed {parts} into {args.out} ({size / 2**20:.1f} MiB); use it with DADIFF_DATA_DIR={args.out}")
+    return 0
+
+
+def cmd_pseudo_label(args: argparse.Namespace) -> int:
+    _check_sequence_lengths(args)
+    if not 0 <= args.min_score <= 1:
+        raise SceneError(f"--min-score {args.min_score} must be in [0, 1]")
+    settings = LinkSettings(min_frames=args.min_frames, max_frames=args.max_frames, min_score=args.min_score,
+                            start_score=max(args.min_score, LinkSettings.start_score), min_height=args.min_height,
+                            min_aspect=args.aspect[0], max_aspect=args.aspect[1])
+    start = time.perf_counter()
+    tracks = write_detection_benchmark(args.video, args.detections, args.out, args.seed, settings)
+    lengths = [len(t.boxes) for t in tracks]
+    print(f"wrote {len(tracks)} day + {len(tracks)} night sequences ({sum(lengths)} frames each way, "
+          f"{min(lengths)}-{max(lengths)} per sequence) from {args.video} and {args.detections} to {args.out} "
+          f"in {time.perf_counter() - start:.1f} s")
     return 0
 
 
@@ -474,7 +525,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "generate": cmd_generate,
-                "video": cmd_video, "data": cmd_data, "tune": cmd_tune}
+                "video": cmd_video, "pseudo-label": cmd_pseudo_label, "data": cmd_data, "tune": cmd_tune}
     try:
         with quiet_opencv():
             return commands[args.command](args)

@@ -159,21 +159,15 @@ def night_sequence(day: list[np.ndarray], rng: np.random.Generator, seed: list[i
             for i, frame in enumerate(day)]
 
 
-def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int = 0,
-                                 settings: LabelSettings = LabelSettings(), max_sequences: int | None = None,
-                                 max_video_frames: int | None = None) -> list[Track]:
-    """Label `video`'s movers and write them as `<out>/vidNNN_day` and `_night` sequences (OTB layout), with
-    `attributes.json` and `benchmark.json`. Returns the tracks written."""
-    out = Path(out).expanduser()
+def check_new_folder(out: Path) -> None:
+    """Refuse to write a benchmark over anything: `out` must not exist or be an empty folder."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise SceneError(f"{out}: exists and is not an empty folder; choose a new --out")
-    frames = read_video(video, max_video_frames)
-    if len(frames) < settings.min_frames:
-        raise SceneError(f"{video}: {len(frames)} frames, fewer than the {settings.min_frames} of one sequence")
-    tracks = label_tracks(frames, settings)[:max_sequences]
-    if not tracks:
-        raise SceneError(f"{video}: no mover seen whole and alone for {settings.min_frames} frames (is the camera "
-                         "fixed? try a lower --min-frames)")
+
+
+def write_tracks(frames: list[np.ndarray], tracks: list[Track], out: Path, seed: int, info: dict) -> None:
+    """Each track as `<out>/vidNNN_day` and `_night` (OTB layout) with `attributes.json`, and `info` with the
+    sequences' video frames as `benchmark.json`."""
     table = {}
     for k, track in enumerate(tracks):
         name = f"vid{k + 1:03d}"
@@ -187,16 +181,31 @@ def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int =
             write_boxes(folder / "groundtruth_rect.txt", track.boxes)
         table[f"{name}_day"], table[f"{name}_night"] = [], ["LAI"]
     (out / "attributes.json").write_text(json.dumps(table, indent=1) + "\n")
-    info = {
-        "generator": "dadiff.runtime.evaluation.fixed_camera",
-        "video": str(video),
-        "video_sha256": file_sha256(Path(video)) if Path(video).is_file() else None,
-        "seed": seed,
-        "night": "real",
-        "settings": asdict(settings),
-        "sequences": [{"name": f"vid{k + 1:03d}", "video_frames": [t.start + 1, t.start + len(t.boxes)]}
-                      for k, t in enumerate(tracks)],
-    }
+    info = {**info, "seed": seed, "night": "real",
+            "sequences": [{"name": f"vid{k + 1:03d}", "video_frames": [t.start + 1, t.start + len(t.boxes)]}
+                          for k, t in enumerate(tracks)]}
     (out / "benchmark.json").write_text(json.dumps(info, indent=1) + "\n")
-    return tracks
 
+
+def video_info(video: str | Path) -> dict:
+    """Where a benchmark's frames came from: the video's path and, for a file, its SHA-256."""
+    return {"video": str(video), "video_sha256": file_sha256(Path(video)) if Path(video).is_file() else None}
+
+
+def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int = 0,
+                                 settings: LabelSettings = LabelSettings(), max_sequences: int | None = None,
+                                 max_video_frames: int | None = None) -> list[Track]:
+    """Label `video`'s movers and write them as `<out>/vidNNN_day` and `_night` sequences (OTB layout), with
+    `attributes.json` and `benchmark.json`. Returns the tracks written."""
+    out = Path(out).expanduser()
+    check_new_folder(out)
+    frames = read_video(video, max_video_frames)
+    if len(frames) < settings.min_frames:
+        raise SceneError(f"{video}: {len(frames)} frames, fewer than the {settings.min_frames} of one sequence")
+    tracks = label_tracks(frames, settings)[:max_sequences]
+    if not tracks:
+        raise SceneError(f"{video}: no mover seen whole and alone for {settings.min_frames} frames (is the camera "
+                         "fixed? try a lower --min-frames)")
+    info = {"generator": "dadiff.runtime.evaluation.fixed_camera", **video_info(video), "settings": asdict(settings)}
+    write_tracks(frames, tracks, out, seed, info)
+    return tracks
