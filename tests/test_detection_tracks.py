@@ -11,6 +11,7 @@ import pytest
 from dadiff.runtime.evaluation.cli import main as eval_main
 from dadiff.runtime.evaluation.datasets import load_dataset
 from dadiff.runtime.evaluation.detection_tracks import LinkSettings, link, read_detections, scene_cuts
+from dadiff.runtime.evaluation.detector import write_det_txt
 
 SIZE = (320, 240)  # width, height
 
@@ -88,9 +89,9 @@ def test_scene_cuts_are_found_and_panning_is_not_one():
 
 
 def _write_det(path: Path, dets: list[np.ndarray], extra: str = "") -> Path:
-    lines = [f"{t + 1},-1,{x:.2f},{y:.2f},{w:.2f},{h:.2f},{s:.3f},-1,-1,-1" for t, rows in enumerate(dets)
-             for x, y, w, h, s in rows]
-    path.write_text("\n".join(lines) + "\n" + extra)
+    write_det_txt(path, dets)
+    with path.open("a") as f:
+        f.write(extra)
     return path
 
 

@@ -6,6 +6,7 @@ dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
+dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
@@ -28,6 +29,7 @@ from ..sources import quiet_opencv
 from .anatomy import anatomy, format_anatomy, format_honesty, grey_bins, honesty
 from .datasets import Dataset, DatasetError, load_dataset
 from .detection_tracks import LinkSettings, write_detection_benchmark
+from .detector import Detector, detect_video, write_det_txt
 from .evaluate import (
     EvalError,
     OpenCVTracker,
@@ -40,7 +42,7 @@ from .evaluate import (
     run_tracker,
     score_folder,
 )
-from .fixed_camera import LabelSettings, write_fixed_camera_benchmark
+from .fixed_camera import LabelSettings, read_video, write_fixed_camera_benchmark
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
 from .metrics import paired_difference
 from .night import NIGHT_STYLES
@@ -68,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,score,anatomy,generate,video,pseudo-label,data,tune}")
+                                metavar="{run,score,anatomy,generate,video,detect,pseudo-label,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -130,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
         "default: classic for skimage, real for library",
     )
     _add_video_parser(sub)
+    _add_detect_parser(sub)
     _add_pseudo_label_parser(sub)
     _add_data_parser(sub)
     _add_tune_parser(sub)
@@ -150,6 +153,28 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--threshold", type=positive_int, default=30,
                        help="grey-level difference from the background that counts as moving (default 30)")
     video.add_argument("--min-area", type=positive_int, default=150, help="smallest box in px (default 150)")
+
+
+def _add_detect_parser(sub: argparse._SubParsersAction) -> None:
+    detect = sub.add_parser("detect", help="a video's per-frame boxes from an ONNX object detector (TF Object "
+                            "Detection API interface), as a MOTChallenge det.txt for pseudo-label")
+    detect.add_argument("--video", required=True, type=Path, help="video file (or folder of frames)")
+    detect.add_argument("--detector", required=True, type=Path, help="the detector, .onnx")
+    detect.add_argument("--out", required=True, type=Path, help="det.txt to write")
+    detect.add_argument("--classes", type=_class_ids, default={1}, metavar="ID[,ID...]",
+                        help="class ids to keep (COCO: 1 person, 3 car; default 1)")
+    detect.add_argument("--tiles", type=int, choices=range(0, 9), default=3, metavar="0-8",
+                        help="overlapping tiles along the frame's long side, besides the whole frame (default 3)")
+    detect.add_argument("--min-score", type=float, default=0.3, help="detections below are not written (default 0.3)")
+    detect.add_argument("--threads", type=positive_int, default=1, help="onnxruntime threads (default 1)")
+
+
+def _class_ids(text: str) -> set[int]:
+    try:
+        ids = {int(v) for v in text.split(",")}
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected class ids such as 1 or 1,3, got '{text}'") from None
+    return ids
 
 
 def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
@@ -450,10 +475,25 @@ def _pack(cache: Path, args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_pseudo_label(args: argparse.Namespace) -> int:
-    _check_sequence_lengths(args)
+def _check_min_score(args: argparse.Namespace) -> None:
     if not 0 <= args.min_score <= 1:
         raise SceneError(f"--min-score {args.min_score} must be in [0, 1]")
+
+
+def cmd_detect(args: argparse.Namespace) -> int:
+    _check_min_score(args)
+    detector = Detector(args.detector, threads=args.threads)
+    frames = read_video(args.video)
+    start = time.perf_counter()
+    count = write_det_txt(args.out, detect_video(frames, detector, args.classes, args.min_score, args.tiles))
+    print(f"wrote {count} detections of class {','.join(map(str, sorted(args.classes)))} in {len(frames)} frames "
+          f"of {args.video} to {args.out} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def cmd_pseudo_label(args: argparse.Namespace) -> int:
+    _check_sequence_lengths(args)
+    _check_min_score(args)
     settings = LinkSettings(min_frames=args.min_frames, max_frames=args.max_frames, min_score=args.min_score,
                             start_score=max(args.min_score, LinkSettings.start_score), min_height=args.min_height,
                             min_aspect=args.aspect[0], max_aspect=args.aspect[1])
@@ -525,7 +565,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "generate": cmd_generate,
-                "video": cmd_video, "pseudo-label": cmd_pseudo_label, "data": cmd_data, "tune": cmd_tune}
+                "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "data": cmd_data,
+                "tune": cmd_tune}
     try:
         with quiet_opencv():
             return commands[args.command](args)
