@@ -195,7 +195,7 @@ class SequenceSource:
 
     def __init__(self, root: str | Path, max_gap: int = 100, match: str = "*") -> None:
         self.sequences = []
-        for gt in sorted(Path(root).rglob("groundtruth*.txt")):
+        for gt in sorted(Path(root).expanduser().rglob("groundtruth*.txt")):
             if not fnmatch.fnmatchcase(gt.parent.name, match):
                 continue
             folder = gt.parent / "img" if (gt.parent / "img").is_dir() else gt.parent
