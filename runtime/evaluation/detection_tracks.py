@@ -31,7 +31,8 @@ class LinkSettings:
     """How detections become tracks; the defaults suit people 24 px tall and up in a 640 x 360 video."""
 
     min_score: float = 0.35  # a detection below this is ignored
-    start_score: float = 0.5  # a track starts only on a detection this sure
+    start_score: float = 0.5  # a track starts only on a detection this sure ...
+    start_clear_iou: float = 0.2  # ... overlapping no open track's last box by more than this
     min_iou: float = 0.4  # a detection continues a track when it overlaps its last box this much...
     ambiguous_iou: float = 0.3  # ... and no other detection overlaps it this much (else the track ends)
     max_gap: int = 8  # frames a track may miss before it ends (the gap is interpolated)
@@ -120,7 +121,7 @@ def link(detections: list[np.ndarray], cuts: list[bool], settings: LinkSettings 
         done += finished
         active = [k for k in active if k not in finished]
         for j, row in enumerate(rows):
-            taken = any(_iou(k.boxes[k.last], row[None, :4])[0] > 0.2 for k in active)
+            taken = any(_iou(k.boxes[k.last], row[None, :4])[0] > settings.start_clear_iou for k in active)
             if j not in used and row[4] >= settings.start_score and not taken:
                 active.append(_Open({t: row[:4]}, t))
     done += active
