@@ -17,13 +17,13 @@ from onnx import TensorProto, helper  # noqa: E402
 
 
 def _detector(path: Path, boxes: list[list[float]], scores: list[float], classes: list[float],
-              input_type: int = TensorProto.UINT8) -> Path:
+              input_type: int = TensorProto.UINT8, box_shape: list[int] | None = None) -> Path:
     """A stand-in detector with the TF Object Detection API's interface: whatever the image, it reports the
     given relative boxes (y0, x0, y1, x1), scores and classes. The image still flows into the graph (its mean,
     times zero, is added to the scores) so that the input is used."""
     n = len(boxes)
     consts = [
-        helper.make_tensor("boxes", TensorProto.FLOAT, [1, n, 4], np.array(boxes, np.float32).ravel()),
+        helper.make_tensor("boxes", TensorProto.FLOAT, box_shape or [1, n, 4], np.array(boxes, np.float32).ravel()),
         helper.make_tensor("scores", TensorProto.FLOAT, [1, n], scores),
         helper.make_tensor("classes", TensorProto.FLOAT, [1, n], classes),
         helper.make_tensor("count", TensorProto.FLOAT, [1], [float(n)]),
@@ -90,6 +90,8 @@ def test_command_writes_each_tile_box_in_frame_pixels_and_keeps_the_wanted_class
          "not a readable ONNX model"),
         (lambda tmp: _detector(tmp / "f.onnx", [[0, 0, 1, 1]], [1.0], [1.0], TensorProto.FLOAT),
          "expected one uint8 image input of rank 4"),
+        (lambda tmp: _detector(tmp / "r.onnx", [[0, 0, 1, 1]], [1.0], [1.0], box_shape=[4]),
+         "the detector failed on a 80 x 50 image: "),
     ],
 )
 def test_a_bad_detector_is_one_line_and_exit_2(tmp_path: Path, capsys, make, message):

@@ -33,7 +33,7 @@ class Detector:
         try:
             self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own types for unreadable or invalid models
-            raise SceneError(f"{path}: not a readable ONNX model ({str(exc).splitlines()[0][:80]})") from None
+            raise SceneError(f"{path}: not a readable ONNX model ({_first_line(exc)})") from None
         inputs = self.session.get_inputs()
         if len(inputs) != 1 or inputs[0].type != "tensor(uint8)" or len(inputs[0].shape) != 4:
             raise SceneError(f"{path}: expected one uint8 image input of rank 4 (TF Object Detection API), got "
@@ -50,16 +50,26 @@ class Detector:
         """Rows (x, y, w, h, score, class) for a BGR image, in its pixels."""
         height, width = image.shape[:2]
         rgb = cv2.resize(image, (self.input_size, self.input_size))[:, :, ::-1]
-        count, scores, boxes, classes = self.session.run(self.outputs, {self.input: rgb[None].copy()})
-        n = int(count[0])
-        y0, x0, y1, x1 = (boxes[0, :n, i] for i in range(4))
-        return np.stack([x0 * width, y0 * height, (x1 - x0) * width, (y1 - y0) * height, scores[0, :n],
-                         classes[0, :n]], axis=1).astype(np.float64).reshape(-1, 6)
+        try:
+            count, scores, boxes, classes = self.session.run(self.outputs, {self.input: rgb[None].copy()})
+            n = int(count[0])
+            y0, x0, y1, x1 = (boxes[0, :n, i] for i in range(4))
+            scores, classes = scores[0, :n], classes[0, :n]
+        except Exception as exc:  # onnxruntime's own errors, or outputs of other shapes than the interface's
+            raise SceneError(f"the detector failed on a {width} x {height} image: {_first_line(exc)}") from None
+        return np.stack([x0 * width, y0 * height, (x1 - x0) * width, (y1 - y0) * height, scores, classes],
+                        axis=1).astype(np.float64).reshape(-1, 6)
+
+
+def _first_line(exc: Exception) -> str:
+    """An exception's first line, short enough for a one-line error."""
+    text = str(exc).strip()
+    return text.splitlines()[0][:100] if text else type(exc).__name__
 
 
 def tiles(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
-    """The whole frame, then `count` tiles (x, y, w, h) along its long side, each half as long as the side
-    would give two and overlapping its neighbours by half."""
+    """The whole frame, then `count` tiles (x, y, w, h) along its long side, each 2 / (count + 1) of that side
+    long, so that neighbours overlap by half."""
     if count == 0:
         return [(0, 0, width, height)]
     long_side = max(width, height)
