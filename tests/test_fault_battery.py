@@ -188,6 +188,7 @@ def test_mavlink_fuzz_leaves_the_service_answering(caplog) -> None:
 
 N_VIDEOS, N_FOLDERS, N_MODELS, N_RUN_CONFIGS, N_HP, N_BENCH_MODELS = 24, 12, 24, 24, 24, 8
 N_EVAL_MODELS, N_EVAL_DATASETS, N_EVAL_RESULTS = 8, 8, 8
+N_DETECTIONS, N_DETECTORS = 8, 6
 N_CHECKPOINTS, N_EXPORT_MODELS, N_TRAIN_CONFIGS = 24, 6, 24
 PROGS = {"dadiff.runtime.cli": "dadiff-run", "dadiff.runtime.evaluation.cli": "dadiff-eval",
          "dadiff.export.cli": "dadiff-export", "dadiff.export.train_cli": "dadiff-train",
@@ -321,7 +322,27 @@ def _runtime_cases(root: Path, rng: random.Random) -> list[dict[str, Any]]:
         target.write_bytes(mutate(target.read_bytes(), rng))
         add("dataset", "dadiff.runtime.evaluation.cli", ["run", "--dataset", str(damaged), "--results",
             str(root / f"dres{i}"), "--model", str(model), "--no-progress", "--no-plots"], strict=False)
+    _pseudo_label_cases(root, rng, add)
     return cases
+
+
+def _pseudo_label_cases(root: Path, rng: random.Random, add: Any) -> None:
+    """Damaged det.txt files against `dadiff-eval pseudo-label`, damaged detectors against `detect`."""
+    from detector_models import write_fake_detector
+
+    truth = "".join(f"{k + 1},-1,{40 + k},40,20,15,0.9,-1,-1,-1\n" for k in range(20)).encode()
+    for i in range(N_DETECTIONS):
+        det = root / f"det{i}.txt"
+        det.write_bytes(mutate(truth, rng))
+        add("detections", "dadiff.runtime.evaluation.cli", ["pseudo-label", "--video", str(root / "base.mp4"),
+            "--detections", str(det), "--out", str(root / f"pl{i}"), "--min-frames", "5", "--aspect", "0.2-5",
+            "--min-height", "10"], strict=False)
+    good = write_fake_detector(root / "detector.onnx", [[0.3, 0.25, 0.45, 0.4]], [0.9], [1.0]).read_bytes()
+    for i in range(N_DETECTORS):
+        bad = root / f"detector{i}.onnx"
+        bad.write_bytes(mutate(good, rng))
+        add("detector", "dadiff.runtime.evaluation.cli", ["detect", "--video", str(root / "base.mp4"),
+            "--detector", str(bad), "--out", str(root / f"det_out{i}.txt")], strict=False)
 
 
 def _run_driver(cases: list[dict[str, Any]], root: Path, timeout: float) -> list[dict[str, Any]]:
