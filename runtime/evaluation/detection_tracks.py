@@ -20,7 +20,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .fixed_camera import Track, _iou, check_new_folder, read_video, video_info, write_tracks
+from .fixed_camera import Track, check_new_folder, read_video, video_info, write_tracks
+from .metrics import iou_with_each
 from .scene_error import SceneError
 
 CUT_SIZE = (80, 45)  # frames are compared at this size to find scene cuts
@@ -78,7 +79,7 @@ def non_maximum_suppression(rows: np.ndarray, threshold: float) -> np.ndarray:
     """The rows (x, y, w, h, score) not overlapping a surer one by more than `threshold` IoU, surest first."""
     kept: list[np.ndarray] = []
     for row in rows[np.argsort(-rows[:, 4], kind="stable")]:
-        if not kept or _iou(row[:4], np.array(kept)[:, :4]).max() <= threshold:
+        if not kept or iou_with_each(row[:4], np.array(kept)[:, :4]).max() <= threshold:
             kept.append(row)
     return np.array(kept, np.float64).reshape(-1, 5)
 
@@ -109,7 +110,7 @@ def link(detections: list[np.ndarray], cuts: list[bool], settings: LinkSettings 
             active = []
         used: set[int] = set()
         for track in active:
-            overlap = _iou(track.boxes[track.last], rows[:, :4]) if len(rows) else np.zeros(0)
+            overlap = iou_with_each(track.boxes[track.last], rows[:, :4]) if len(rows) else np.zeros(0)
             order = np.argsort(-overlap, kind="stable")
             second = overlap[order[1]] if len(order) > 1 else 0.0
             if second >= settings.ambiguous_iou:
@@ -121,7 +122,7 @@ def link(detections: list[np.ndarray], cuts: list[bool], settings: LinkSettings 
         done += finished
         active = [k for k in active if k not in finished]
         for j, row in enumerate(rows):
-            taken = any(_iou(k.boxes[k.last], row[None, :4])[0] > settings.start_clear_iou for k in active)
+            taken = any(iou_with_each(k.boxes[k.last], row[None, :4])[0] > settings.start_clear_iou for k in active)
             if j not in used and row[4] >= settings.start_score and not taken:
                 active.append(_Open({t: row[:4]}, t))
     done += active

@@ -23,7 +23,7 @@ import numpy as np
 from ..frames import decode_video
 from ..ort_cache import file_sha256
 from .datasets import list_frames
-from .metrics import iou
+from .metrics import iou_with_each
 from .night import NightLights, RealNight
 from .scene_error import SceneError
 from .scenes import write_boxes, write_frame
@@ -93,11 +93,6 @@ def foreground_boxes(grey: np.ndarray, back: np.ndarray, settings: LabelSettings
     return boxes[boxes[:, 2] * boxes[:, 3] >= settings.min_area]
 
 
-def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """IoU of one box with each of `boxes` (the benchmark's own IoU, one box against many)."""
-    return iou(np.broadcast_to(box, boxes.shape), boxes)
-
-
 def _whole(box: np.ndarray, size: tuple[int, int], settings: LabelSettings) -> bool:
     """Inside the frame by `border` px and upright enough: a mover seen whole, not one entering or a group."""
     x, y, w, h = box
@@ -112,7 +107,7 @@ def follow(blobs: list[np.ndarray], start: int, box: np.ndarray, size: tuple[int
     plausible change of size and height; stops at a merge, a split, a loss or the border, or after max_frames."""
     boxes = [box]
     for t in range(start + 1, min(len(blobs), start + settings.max_frames)):
-        overlap = _iou(boxes[-1], blobs[t]) if len(blobs[t]) else np.zeros(0)
+        overlap = iou_with_each(boxes[-1], blobs[t]) if len(blobs[t]) else np.zeros(0)
         following = np.flatnonzero(overlap > settings.min_iou)
         if len(following) != 1:
             break
@@ -123,7 +118,7 @@ def follow(blobs: list[np.ndarray], start: int, box: np.ndarray, size: tuple[int
             break
         if not 1 / settings.max_height_change < stretch < settings.max_height_change:
             break
-        if np.count_nonzero(_iou(nxt, blobs[t]) > settings.min_iou) != 1:
+        if np.count_nonzero(iou_with_each(nxt, blobs[t]) > settings.min_iou) != 1:
             break  # another blob also touches the one that continues the track: they are about to merge
         boxes.append(nxt)
     return np.array(boxes)
@@ -141,7 +136,7 @@ def label_tracks(frames: list[np.ndarray], settings: LabelSettings = LabelSettin
         for box in blobs[start]:
             if not _whole(box, size, settings):
                 continue
-            if any((b := t.box_at(start)) is not None and _iou(b, box[None])[0] > 0.5 for t in tracks):
+            if any((b := t.box_at(start)) is not None and iou_with_each(b, box[None])[0] > 0.5 for t in tracks):
                 continue
             boxes = follow(blobs, start, box, size, settings)
             if len(boxes) >= settings.min_frames:

@@ -64,6 +64,11 @@ def iou(gt: object, pred: object) -> np.ndarray:
     return out
 
 
+def iou_with_each(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """IoU of one box (x, y, w, h) with each row of `boxes`: the benchmark's own IoU, one box against many."""
+    return iou(np.broadcast_to(box, boxes.shape), boxes)
+
+
 def centres(boxes: object) -> np.ndarray:
     """(N, 2) centres in the toolkit's convention, (x + (w - 1)/2, y + (h - 1)/2)."""
     b = as_boxes(boxes)
