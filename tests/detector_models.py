@@ -15,7 +15,7 @@ from onnx import TensorProto, helper
 
 
 def write_fake_detector(path: Path, boxes: list[list[float]], scores: list[float], classes: list[float],
-              input_type: int = TensorProto.UINT8, box_shape: list[int] | None = None) -> Path:
+                        input_type: int = TensorProto.UINT8, box_shape: list[int] | None = None) -> Path:
     """Write the stand-in detector to `path` (`box_shape` other than (1, n, 4) breaks the interface)."""
     n = len(boxes)
     consts = [

@@ -84,13 +84,16 @@ def tiles(width: int, height: int, count: int) -> list[tuple[int, int, int, int]
 
 def detect_video(frames: list[np.ndarray], detector: Detector, classes: set[int], min_score: float,
                  tile_count: int) -> list[np.ndarray]:
-    """Per frame, the (x, y, w, h, score) rows of the wanted classes from the whole frame and its tiles."""
+    """Per frame, the (x, y, w, h, score) rows of the wanted classes from the whole frame and its tiles (the
+    frames share one size, as `read_video` guarantees, so the tiles are laid out once)."""
+    layout = tiles(frames[0].shape[1], frames[0].shape[0], tile_count)
+    wanted = sorted(classes)
     out = []
     for frame in frames:
         rows = []
-        for x, y, w, h in tiles(frame.shape[1], frame.shape[0], tile_count):
+        for x, y, w, h in layout:
             found = detector.detect(frame[y:y + h, x:x + w])
-            found = found[(found[:, 4] >= min_score) & np.isin(found[:, 5].round(), list(classes))]
+            found = found[(found[:, 4] >= min_score) & np.isin(found[:, 5].round(), wanted)]
             rows.append(found[:, :5] + [x, y, 0, 0, 0])
         out.append(np.concatenate(rows))
     return out
