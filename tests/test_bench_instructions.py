@@ -51,7 +51,7 @@ def test_the_counted_program_tracks_the_clip(model_dir: Path, tmp_path: Path) ->
         assert done.returncode == 0, done.stderr
 
 
-def test_the_clip_is_decoded_once_outside_valgrind(tmp_path: Path) -> None:
+def test_the_clip_is_the_first_frames_as_one_array(tmp_path: Path) -> None:
     """The counted program loads frames, not a video: decoding is not counted and does not vary the totals."""
     video = write_night_video(tmp_path, 0, 60)
     clip = np.load(instructions.write_clip(video.path, tmp_path / "clip.npy"))
