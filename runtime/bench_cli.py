@@ -55,7 +55,7 @@ from .evaluation.evaluate import (
     tracker_folder,
 )
 from .evaluation.scene_error import SceneError
-from .instructions import CLIP, UPDATES, InstructionCountError, count_updates, valgrind_path
+from .instructions import CLIP, UPDATES, InstructionCountError, count_updates, valgrind_path, write_clip
 from .onnx_backend import physical_cores, thread_count
 from .tracker import Tracker
 
@@ -313,10 +313,11 @@ def run_instructions(args: argparse.Namespace, models: list[Path]) -> dict:
     use_nano = _use_nano(args)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         video = write_night_video(Path(tmp), args.seed, min(args.clip, CLIP))  # the counter reads no more
-        counts = [count_updates("model", str(m), video.path, video.first_box, m.name) for m in models]
+        clip = write_clip(video.path, Path(tmp) / "clip.npy")
+        counts = [count_updates("model", str(m), clip, video.first_box, m.name) for m in models]
         if use_nano:
             nano_dir = str(nano_files(args.nano_dir)[0].parent)
-            counts.append(count_updates("nano", nano_dir, video.path, video.first_box, nano_label()))
+            counts.append(count_updates("nano", nano_dir, clip, video.first_box, nano_label()))
     report = {"machine": _cpu(), "mode": "instructions", "video": f"generated night sequence {video.name}",
               "updates": list(UPDATES), "results": [vars(c) for c in counts[:len(models)]]}
     if use_nano:

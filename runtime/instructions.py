@@ -87,10 +87,10 @@ def _worker_command(kind: str, target: str, clip: Path, box: tuple[float, ...], 
 
 
 def count_updates(
-    kind: str, target: str, video: Path, box: tuple[float, ...], name: str, updates: tuple[int, int] = UPDATES
+    kind: str, target: str, clip: Path, box: tuple[float, ...], name: str, updates: tuple[int, int] = UPDATES
 ) -> UpdateCount:
-    """Count one tracker's instructions per update under callgrind. `kind`: "model" (`target` = model folder)
-    or "nano" (`target` = NanoTrack v2 folder)."""
+    """Count one tracker's instructions per update under callgrind on `clip` (`write_clip`; one clip serves every
+    tracker compared). `kind`: "model" (`target` = model folder) or "nano" (`target` = NanoTrack v2 folder)."""
     valgrind = valgrind_path()
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "DADIFF_CACHE_DIR": "off",
            "PYTHONHASHSEED": "0",
@@ -98,7 +98,6 @@ def count_updates(
            "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"}
     totals = []
     with tempfile.TemporaryDirectory(prefix="dadiff-callgrind-") as tmp:
-        clip = write_clip(video, Path(tmp) / "clip.npy")
         for count in updates:
             out = Path(tmp) / f"callgrind-{count}.out"
             command = [valgrind, "--tool=callgrind", f"--callgrind-out-file={out}", "--dump-instr=no",

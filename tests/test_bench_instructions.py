@@ -65,7 +65,7 @@ def test_the_clip_is_the_first_frames_as_one_array(tmp_path: Path) -> None:
 def test_report_sets_each_model_against_tracker_nano(model_dir: Path, monkeypatch, capsys) -> None:
     counted = []
 
-    def fake_count(kind, target, video, box, name, updates=instructions.UPDATES):
+    def fake_count(kind, target, clip, box, name, updates=instructions.UPDATES):
         counted.append(kind)
         return UpdateCount(name, 40e6 if kind == "model" else 20e6, (1, 2))
 
@@ -97,5 +97,6 @@ def test_a_real_count_under_valgrind(model_dir: Path, tmp_path: Path) -> None:
     AVX-512 instruction) and the longer run counts more. Four updates of the tiny model (about 4e7
     instructions) stand well clear of what the same program's totals vary by (under 1e7)."""
     video = write_night_video(tmp_path, 0, 6)
-    count = instructions.count_updates("model", str(model_dir), video.path, video.first_box, "corr-test", (1, 5))
+    clip = instructions.write_clip(video.path, tmp_path / "clip.npy")
+    count = instructions.count_updates("model", str(model_dir), clip, video.first_box, "corr-test", (1, 5))
     assert count.instructions > 0 and count.runs[1] > count.runs[0]
