@@ -193,7 +193,12 @@ class SequenceSource:
     frames in `img/`) folders under a root; `match` keeps the folders whose name matches it (`*_day`: the day
     half of a benchmark that `dadiff-eval video` or `pseudo-label` wrote; training renders its own nights)."""
 
-    def __init__(self, root: str | Path, max_gap: int = 100, match: str = "*") -> None:
+    FAR_WIDTH = (10.0, 30.0)  # px: the target's width in a shrunk pair, as vtest's people at their smallest
+
+    def __init__(self, root: str | Path, max_gap: int = 100, match: str = "*", far: float = 0.0) -> None:
+        if not 0.0 <= far <= 1.0:
+            raise ValueError(f"far is {far}: a share of pairs, from 0 to 1")
+        self.far = far  # share of pairs whose frames are shrunk so the target is 10-30 px wide
         self.sequences = []
         for gt in sorted(Path(root).expanduser().rglob("groundtruth*.txt")):
             if not fnmatch.fnmatchcase(gt.parent.name, match):
@@ -221,7 +226,24 @@ class SequenceSource:
         fa, fb = cv2.imread(str(frames[valid[a]])), cv2.imread(str(frames[b]))
         if fa is None or fb is None:
             raise ValueError(f"unreadable frame in {frames[0].parent}")
-        return fa, boxes[valid[a]], fb, boxes[b]
+        box_a, box_b = boxes[valid[a]], boxes[b]
+        if self.far > 0 and rng.random() < self.far:
+            fa, box_a, fb, box_b = self._shrink(fa, box_a, fb, box_b, rng)
+        return fa, box_a, fb, box_b
+
+    def _shrink(self, fa: np.ndarray, box_a: np.ndarray, fb: np.ndarray, box_b: np.ndarray,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Both frames shrunk by one factor (one camera further away) so the template's target is 10-30 px
+        wide; the night is rendered afterwards, so its noise and blocking fall on a few-pixel person, whom
+        the crop then enlarges, as on a far person filmed at night. A target already that small stays."""
+        factor = min(1.0, rng.uniform(*self.FAR_WIDTH) / box_a[2])
+        if factor >= 1.0:
+            return fa, box_a, fb, box_b
+        size = (max(1, round(fa.shape[1] * factor)), max(1, round(fa.shape[0] * factor)))
+        sx, sy = size[0] / fa.shape[1], size[1] / fa.shape[0]
+        scale = np.array([sx, sy, sx, sy], np.float64)
+        small_a, small_b = (cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in (fa, fb))
+        return small_a, box_a * scale, small_b, box_b * scale
 
 
 class ImageFolderSource:
@@ -277,7 +299,7 @@ def make_day_source(spec: dict):
                            source=spec.get("source", "skimage"), companions=float(spec.get("companions", 0.0)),
                            stretch=float(spec.get("stretch", 0.0)))
     if kind in ("got10k", "otb", "sequences"):
-        return SequenceSource(spec["root"], match=spec.get("match", "*"))
+        return SequenceSource(spec["root"], match=spec.get("match", "*"), far=float(spec.get("far", 0.0)))
     if kind == "images":
         return ImageFolderSource(spec["root"])
     raise ValueError(f"unknown day data kind {kind!r}; expected scenes, got10k, otb or images")

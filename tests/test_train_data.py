@@ -162,3 +162,29 @@ def test_library_scene_options_are_shares_of_library_scenes(option, value, sourc
 
     with pytest.raises(ValueError, match=f"{option} is {value}"):
         make_day_source({"kind": "scenes", "split": "train", "source": source, option: value})
+
+
+def test_far_pairs_shrink_both_frames_so_the_target_is_a_few_pixels_wide(tmp_path):
+    """`far`: the share of a sequence source's pairs whose two frames are shrunk by one factor so the
+    template's target is 10-30 px wide (a far person at night, whom the crop enlarges); boxes follow the
+    frames. At 0 no draw is made, so the pairs are those of before the option."""
+    root = write_benchmark(tmp_path / "bench", sequences=2, frames=10, seed=3, split="train")
+    plain, far = SequenceSource(root), SequenceSource(root, far=1.0)
+    shrunk = 0
+    for seed in range(12):
+        fa, ba, fb, bb = plain.sample(np.random.default_rng(seed))
+        sa, sba, sb, sbb = far.sample(np.random.default_rng(seed))
+        assert sa.shape == sb.shape
+        factor = sa.shape[1] / fa.shape[1]
+        if factor == 1.0:  # a target already as narrow as the drawn width stays as it is
+            assert ba[2] <= SequenceSource.FAR_WIDTH[1] and np.array_equal(sba, ba)
+            continue
+        shrunk += 1
+        assert SequenceSource.FAR_WIDTH[0] - 1 <= sba[2] <= SequenceSource.FAR_WIDTH[1] + 1
+        np.testing.assert_allclose(sbb[2:], bb[2:] * factor, rtol=0.02)
+        np.testing.assert_allclose(sba[2] / ba[2], factor, rtol=0.02)
+    assert shrunk >= 3
+    again = SequenceSource(root, far=0.0).sample(np.random.default_rng(0))
+    assert all(np.array_equal(u, v) for u, v in zip(again, plain.sample(np.random.default_rng(0)), strict=True))
+    with pytest.raises(ValueError, match="far is 1.5"):
+        SequenceSource(root, far=1.5)
