@@ -197,7 +197,7 @@ class SequenceSource:
 
     def __init__(self, root: str | Path, max_gap: int = 100, match: str = "*", far: float = 0.0) -> None:
         if not 0.0 <= far <= 1.0:
-            raise ValueError(f"far is {far}: a share of pairs, from 0 to 1")
+            raise ValueError(f"far is {far}; expected a share 0-1 of pairs")
         self.far = far  # share of pairs whose frames are shrunk so the target is 10-30 px wide
         self.sequences = []
         for gt in sorted(Path(root).expanduser().rglob("groundtruth*.txt")):
@@ -236,7 +236,7 @@ class SequenceSource:
         """Both frames shrunk by one factor (one camera further away) so the template's target is 10-30 px
         wide; the night is rendered afterwards, so its noise and blocking fall on a few-pixel person, whom
         the crop then enlarges, as on a far person filmed at night. A target already that small stays."""
-        factor = min(1.0, rng.uniform(*self.FAR_WIDTH) / box_a[2])
+        factor = rng.uniform(*self.FAR_WIDTH) / box_a[2]
         if factor >= 1.0:
             return fa, box_a, fb, box_b
         size = (max(1, round(fa.shape[1] * factor)), max(1, round(fa.shape[0] * factor)))
