@@ -41,27 +41,17 @@ export PYTHONPATH="$shim" PYTHONUNBUFFERED=1 DADIFF_DATA_DIR="$PWD/.device/libra
 teacher=$( [ -f .device/nanotrack_backbone.onnx ] && python3 -c "import onnxruntime" 2>/dev/null && echo "$PWD/.device" || echo "")
 # the GPU run: the same config with a bigger batch, many data workers, the output in /tmp, the teacher carried
 python3 - "$config" "$teacher" "${DEVICE_BATCH:-128}" "${DEVICE_WORKERS:-14}" <<'EOF' > /tmp/device-config.toml
-import sys, tomllib
-cfg = tomllib.load(open(sys.argv[1], "rb"))
-train = cfg.get("train", cfg)
+import sys
+from dadiff.export.train_toml import config_chain, format_toml  # torch-free: follows `extends`
+train = {}
+for _, own in config_chain(sys.argv[1]):
+    train.update(own)
 train.update(out="/tmp/device-run", batch_size=int(sys.argv[3]), workers=int(sys.argv[4]))
 if sys.argv[2]:
     train["teacher"] = sys.argv[2]
 else:
     train.pop("teacher", None)
-def value(v):
-    if isinstance(v, str):
-        return '"' + v + '"'
-    if isinstance(v, bool):
-        return str(v).lower()
-    if isinstance(v, list):
-        return "[" + ", ".join(value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
-    return repr(v)
-print("[train]")
-for k, v in train.items():
-    print(f"{k} = {value(v)}")
+print(format_toml(train), end="")
 EOF
 mkdir -p /tmp/device-run
 [ -f .device/run/last.pt ] && cp .device/run/last.pt /tmp/device-run/

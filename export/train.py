@@ -13,9 +13,8 @@ import math
 import os
 import sys
 import time
-import tomllib
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +41,7 @@ from .network import DaDiffNet, build_model
 from .train_check import check_train_values
 from .train_cli import build_parser, finish_line
 from .train_data import CropConfig, PairStream, make_day_source
+from .train_toml import config_chain, format_toml
 
 DAY, NIGHT = 0.0, 1.0
 DADIFF_BLOCK = ("diffusion.", "align_track.", "align_scale")  # parameter names of the DaDiff block
@@ -96,28 +96,17 @@ class TrainConfig:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
-        try:
-            with open(path, "rb") as f:
-                raw = tomllib.load(f)
-        except FileNotFoundError:
-            raise ValueError(f"{path}: no such config file") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ValueError(f"{path}: invalid TOML ({e})") from None
-        except UnicodeDecodeError:
-            raise ValueError(f"{path}: not a text file (TOML must be UTF-8)") from None
-        except OSError as e:
-            raise ValueError(f"{path}: cannot read ({e.strerror or e})") from None
-        flat: dict[str, Any] = {}
-        for key, value in raw.items():
-            if isinstance(value, dict) and key in ("train", "loss", "data", "output"):
-                flat.update(value)
-            else:
-                flat[key] = value
+        """The config in `path`, after the files it `extends`; each file's keys are checked where they are
+        written (unknown keys, types and ranges), so an error names the file that holds the bad key."""
         known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(flat) - known)
-        if unknown:
-            raise ValueError(f"{path}: unknown config keys: {', '.join(unknown)} (dadiff-train --help lists them)")
-        check_train_values(cls(), flat, path)  # types and ranges, before any work
+        flat: dict[str, Any] = {}
+        for file, own in config_chain(path):
+            unknown = sorted(set(own) - known)
+            if unknown:
+                raise ValueError(f"{file}: unknown config keys: {', '.join(unknown)} (dadiff-train --help lists "
+                                 f"them)")
+            flat.update(own)
+            check_train_values(cls(), flat, file)  # types and ranges, before any work
         cfg = cls(**flat)
         if cfg.stage not in ("baseline", "dadiff"):
             raise ValueError(f"{path}: stage must be 'baseline' or 'dadiff', got {cfg.stage!r}")
@@ -545,6 +534,9 @@ def main(argv: list[str] | None = None) -> int:
             cfg.out = args.out
         if args.seed is not None:
             cfg.seed = args.seed
+        if args.show_config:
+            print(format_toml(asdict(cfg)), end="")
+            return 0
         trainer = run(cfg, args.max_steps, device=args.device, max_minutes=args.max_minutes)
     except (ValueError, CheckpointError) as e:
         print(f"dadiff-train: error: {e}", file=sys.stderr)

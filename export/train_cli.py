@@ -63,10 +63,12 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("lambda_night_distill", "0.0", "the teacher's day-crop responses as targets on the rendered night crops"),
     ("lambda_night_trc", "0.0", "tracking loss on the rendered night pairs too (their boxes are the day boxes)"),
 )
+# not a TrainConfig field: export/train_toml.py follows it before the keys are read
+EXTENDS = ("extends", "(none)", "a config (path relative to this file) to start from; each key here replaces its value")
 
 
 def config_help() -> str:
-    rows = "\n".join(f"  {key:<23} {default:<38} {what}" for key, default, what in CONFIG_KEYS)
+    rows = "\n".join(f"  {key:<23} {default:<38} {what}" for key, default, what in (*CONFIG_KEYS, EXTENDS))
     return ("config keys (top level, or inside [train], [loss], [data], [output] tables; types are checked):\n"
             f"{rows}\n\nFinished runs write <out>/final.pt: export it with dadiff-export <out>/final.pt. "
             f"Exit codes: 0 done or stopped by --max-steps/--max-minutes (resume with the same command), 2 bad "
@@ -99,6 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="override the config's output folder")
     p.add_argument("--seed", type=_positive(int, zero=True),
                    help="override the config's seed (a second run of one recipe: use another --out too)")
+    p.add_argument("--show-config", action="store_true",
+                   help="print the config the run would use (after 'extends' and --out/--seed) and exit")
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
     p.add_argument("--max-minutes", type=_positive(float),
                    help="stop after this many minutes of this run (resume later; default: no limit)")
