@@ -122,6 +122,9 @@ class TrainConfig:
         if cfg.night_path_lamps and (cfg.night_pairs != "scene" or cfg.night is not None):
             raise ValueError(f"{path}: night_path_lamps needs night_pairs = \"scene\" (night rendered over the "
                              f"generated scene); set it or drop night_path_lamps")
+        if any(source.get("one_night") for source in cfg.day) and cfg.night_pairs != "scene":
+            raise ValueError(f"{path}: a day source's one_night needs night_pairs = \"scene\" (a night over each "
+                             f"pair); set it or drop one_night")
         if cfg.batch_size < 2:  # BatchNorm layers (head, channel weights) need 2+ samples per process
             raise ValueError(f"{path}: batch_size must be at least 2 per process, got {cfg.batch_size}")
         return cfg

@@ -195,10 +195,13 @@ class SequenceSource:
 
     FAR_WIDTH = (10.0, 30.0)  # px: the target's width in a shrunk pair, as vtest's people at their smallest
 
-    def __init__(self, root: str | Path, max_gap: int = 100, match: str = "*", far: float = 0.0) -> None:
+    def __init__(self, root: str | Path, max_gap: int = 100, match: str = "*", far: float = 0.0,
+                 one_night: bool = False) -> None:
         if not 0.0 <= far <= 1.0:
             raise ValueError(f"far is {far}; expected a share 0-1 of pairs")
         self.far = far  # share of pairs whose frames are shrunk so the target is 10-30 px wide
+        self.one_night = one_night  # night_pair: one camera and fixed lights over both frames
+        self._gap = 0  # frames between the last sampled pair's two frames
         self.sequences = []
         for gt in sorted(Path(root).expanduser().rglob("groundtruth*.txt")):
             if not fnmatch.fnmatchcase(gt.parent.name, match):
@@ -223,6 +226,7 @@ class SequenceSource:
         a = int(rng.integers(len(valid)))
         near = [k for k in valid if abs(k - valid[a]) <= self.max_gap]
         b = near[int(rng.integers(len(near)))]
+        self._gap = abs(b - valid[a])
         fa, fb = cv2.imread(str(frames[valid[a]])), cv2.imread(str(frames[b]))
         if fa is None or fb is None:
             raise ValueError(f"unreadable frame in {frames[0].parent}")
@@ -244,6 +248,24 @@ class SequenceSource:
         scale = np.array([sx, sy, sx, sy], np.float64)
         small_a, small_b = (cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in (fa, fb))
         return small_a, box_a * scale, small_b, box_b * scale
+
+    def night_pair(self, fi: np.ndarray, fj: np.ndarray, rng: np.random.Generator,
+                   style: str, path_lamps: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The last sampled pair at night. With `one_night`, as `dadiff-eval video` renders a sequence: one
+        "real" night camera and street lights fixed in the image, the exposure locked on the template frame,
+        so the template and the search frame are lit alike. Otherwise (and for the "classic" style) each
+        frame gets its own random night, as before. `path_lamps` is a scene's (it needs the scene's ground)."""
+        from dadiff.runtime.evaluation.night import NightLights, RealNight, render_night
+
+        if not self.one_night or style != "real":
+            return render_night(fi, rng, style=style), render_night(fj, rng, style=style)
+        h, w = fi.shape[:2]
+        camera = RealNight.random(rng)
+        lights = NightLights.random(rng, camera.kind, w, h)
+        first = lights.at(None, 0, w, h)
+        gain = camera.exposure(fi, first)
+        return (camera.apply(fi, rng, first, gain=gain),
+                camera.apply(fj, rng, lights.at(None, self._gap, w, h), gain=gain))
 
 
 class ImageFolderSource:
@@ -299,7 +321,11 @@ def make_day_source(spec: dict):
                            source=spec.get("source", "skimage"), companions=float(spec.get("companions", 0.0)),
                            stretch=float(spec.get("stretch", 0.0)))
     if kind in ("got10k", "otb", "sequences"):
-        return SequenceSource(spec["root"], match=spec.get("match", "*"), far=float(spec.get("far", 0.0)))
+        one_night = spec.get("one_night", False)
+        if not isinstance(one_night, bool):
+            raise ValueError(f"one_night is {one_night!r}; expected true or false")
+        return SequenceSource(spec["root"], match=spec.get("match", "*"), far=float(spec.get("far", 0.0)),
+                              one_night=one_night)
     if kind == "images":
         return ImageFolderSource(spec["root"])
     raise ValueError(f"unknown day data kind {kind!r}; expected scenes, got10k, otb or images")

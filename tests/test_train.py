@@ -474,7 +474,9 @@ def test_night_path_lamps_config_is_a_share_of_scene_lit_pairs(tmp_path, capsys)
     from dadiff.export.train import main
 
     for text, message in (('night_pairs = "scene"\nnight_path_lamps = 1.5', "'night_path_lamps' is 1.5; expected <= 1"),
-                          ("night_path_lamps = 0.5", 'night_path_lamps needs night_pairs = "scene"')):
+                          ("night_path_lamps = 0.5", 'night_path_lamps needs night_pairs = "scene"'),
+                          ('day = [{ kind = "sequences", root = ".", one_night = true }]',
+                           'one_night needs night_pairs = "scene"')):
         bad = tmp_path / "lamps.toml"
         bad.write_text(f"[train]\n{text}\n")
         assert main(["--config", str(bad)]) == 2

@@ -7,7 +7,14 @@ import pytest
 
 pytest.importorskip("torch")
 
-from dadiff.export.train_data import CropConfig, PairStream, SceneSource, SequenceSource, ban_targets  # noqa: E402
+from dadiff.export.train_data import (  # noqa: E402
+    CropConfig,
+    PairStream,
+    SceneSource,
+    SequenceSource,
+    ban_targets,
+    make_day_source,
+)
 from dadiff.runtime.evaluation.scenes import write_benchmark  # noqa: E402
 
 
@@ -81,6 +88,32 @@ def test_scene_night_pairs_share_one_camera_and_its_lights():
     a, b = (x.astype(np.float32) for x in source.night_pair(frame, frame, rng, "real"))
     c, d = (render_night(frame, rng).astype(np.float32) for _ in range(2))
     assert np.abs(a.mean(axis=2) - b.mean(axis=2)).mean() < 0.5 * np.abs(c.mean(axis=2) - d.mean(axis=2)).mean()
+
+
+def test_sequence_one_night_lights_both_frames_alike_and_off_keeps_the_old_pairs(tmp_path):
+    """A sequence source's `one_night`: the pair under one camera, fixed lights and the template's exposure, as
+    `dadiff-eval video` renders a sequence, so the same frame twice differs only by sensor noise; off, each
+    frame gets its own night with the same draws as before the option (recorded runs' streams unchanged)."""
+    from dadiff.runtime.evaluation.night import render_night
+
+    root = write_benchmark(tmp_path / "bench", sequences=1, frames=4, seed=3, split="train")
+    plain, lit = SequenceSource(root), SequenceSource(root, one_night=True)
+    frame = lit.sample(np.random.default_rng(1))[0]
+    lit._gap = 0  # the frame with itself
+    near, far = [], []
+    for seed in range(4):
+        a, b = (x.astype(np.float32).mean(axis=2) for x in lit.night_pair(frame, frame, np.random.default_rng(seed),
+                                                                           "real"))
+        c, d = (x.astype(np.float32).mean(axis=2) for x in plain.night_pair(frame, frame,
+                                                                             np.random.default_rng(seed), "real"))
+        near.append(np.abs(a - b).mean())
+        far.append(np.abs(c - d).mean())
+        rng = np.random.default_rng(seed)
+        old = (render_night(frame, rng).astype(np.float32).mean(axis=2) for _ in range(2))
+        assert all(np.array_equal(u, v) for u, v in zip(old, (c, d), strict=True))
+    assert np.mean(near) < 0.5 * np.mean(far), (near, far)
+    with pytest.raises(ValueError, match="one_night is 'yes'"):
+        make_day_source({"kind": "sequences", "root": str(root), "one_night": "yes"})
 
 
 def test_pair_stream_renders_scene_pairs_through_the_source_only_when_asked(monkeypatch):
