@@ -251,21 +251,19 @@ class SequenceSource:
 
     def night_pair(self, fi: np.ndarray, fj: np.ndarray, rng: np.random.Generator,
                    style: str, path_lamps: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """The last sampled pair at night. With `one_night`, as `dadiff-eval video` renders a sequence: one
-        "real" night camera and street lights fixed in the image, the exposure locked on the template frame,
-        so the template and the search frame are lit alike. Otherwise (and for the "classic" style) each
-        frame gets its own random night, as before. `path_lamps` is a scene's (it needs the scene's ground)."""
-        from dadiff.runtime.evaluation.night import NightLights, RealNight, render_night
+        """The last sampled pair at night. With `one_night`, as `dadiff-eval video` renders a sequence
+        (`night_sequence`): one "real" night camera and street lights fixed in the image, the exposure locked
+        on the template frame, so the template and the search frame are lit alike. Otherwise (and for the
+        "classic" style) each frame gets its own random night, as before. `path_lamps` is a scene's (it needs
+        the scene's ground)."""
+        from dadiff.runtime.evaluation.fixed_camera import night_sequence
+        from dadiff.runtime.evaluation.night import render_night
 
         if not self.one_night or style != "real":
             return render_night(fi, rng, style=style), render_night(fj, rng, style=style)
-        h, w = fi.shape[:2]
-        camera = RealNight.random(rng)
-        lights = NightLights.random(rng, camera.kind, w, h)
-        first = lights.at(None, 0, w, h)
-        gain = camera.exposure(fi, first)
-        return (camera.apply(fi, rng, first, gain=gain),
-                camera.apply(fj, rng, lights.at(None, self._gap, w, h), gain=gain))
+        noise = [int(rng.integers(2**31))]
+        first, second = night_sequence([fi, fj], rng, noise, [0, self._gap])
+        return first, second
 
 
 class ImageFolderSource:

@@ -144,14 +144,18 @@ def label_tracks(frames: list[np.ndarray], settings: LabelSettings = LabelSettin
     return tracks
 
 
-def night_sequence(day: list[np.ndarray], rng: np.random.Generator, seed: list[int]) -> list[np.ndarray]:
-    """The frames at night: one night camera and street lights fixed in the image, exposure locked on frame 0."""
+def night_sequence(day: list[np.ndarray], rng: np.random.Generator, seed: list[int],
+                   numbers: list[int] | None = None) -> list[np.ndarray]:
+    """The frames at night: one night camera and street lights fixed in the image, exposure locked on the
+    first frame; `numbers`: each frame's number in its sequence, where moving lights have got to (default
+    0, 1, 2, ...; training passes a pair's two frame numbers)."""
     height, width = day[0].shape[:2]
     camera = RealNight.random(rng)
     lights = NightLights.random(rng, camera.kind, width, height)
-    gain = camera.exposure(day[0], lights.at(None, 0, width, height))
-    return [camera.apply(frame, np.random.default_rng([*seed, i]), lights.at(None, i, width, height), gain=gain)
-            for i, frame in enumerate(day)]
+    numbers = list(range(len(day))) if numbers is None else numbers
+    gain = camera.exposure(day[0], lights.at(None, numbers[0], width, height))
+    return [camera.apply(frame, np.random.default_rng([*seed, i]), lights.at(None, n, width, height), gain=gain)
+            for i, (frame, n) in enumerate(zip(day, numbers, strict=True))]
 
 
 def check_new_folder(out: Path) -> None:
