@@ -207,6 +207,32 @@ class Tracker:
         latency = {"crop": t1 - t0, "search": t2 - t1, "post": t3 - t2, "total": t3 - t0}
         return TrackResult((cx - w / 2, cy - h / 2, w, h), det.score, state, latency, self._monitor.confidence)
 
+    def look(self, frame: np.ndarray, box: Sequence[float], shift: tuple[float, float] = (0.0, 0.0)
+             ) -> tuple[float, float, float, float]:
+        """The network's own box (x, y, w, h in frame pixels) with the search crop cut around `box` at its
+        size, its centre moved by `shift` crop pixels: one search-graph run, read before the size smoothing,
+        the bounds and the lost state, and the tracker's state left as it was. A measuring tool
+        (`dadiff-eval box-read`): tracking mixes the network's box error with its own history."""
+        if self._feeds is None:
+            raise RuntimeError("Tracker.look() called before init()")
+        image = as_image(frame)
+        x, y, w, h = _check_box(box, image.shape[1], image.shape[0])
+        g, p = self.geometry, self.params
+        kept = self._centre, self._size
+        try:
+            self._size = (w, h)
+            s_z = self._context_side()
+            scale = g.exemplar_size / s_z  # crop pixels per frame pixel
+            self._centre = (x + (w - 1) / 2 + shift[0] / scale, y + (h - 1) / 2 + shift[1] / scale)
+            crop = self._crop(image, g.instance_size, s_z * g.instance_size / g.exemplar_size)
+            cls, loc = self.backend.search(crop, self._feeds)
+            det = self._decode(cls, loc, w * scale, h * scale, p.penalty_k, p.window_influence)
+            cx, cy = self._centre[0] + det.dx / scale, self._centre[1] + det.dy / scale
+        finally:
+            self._centre, self._size = kept
+        bw, bh = det.w / scale, det.h / scale
+        return cx - bw / 2, cy - bh / 2, bw, bh
+
     def _propose_size(self, det: Detection, scale: float, img_w: int, img_h: int) -> tuple[tuple[float, float], bool]:
         """The size this detection leads to (released lr blend, then the bounds and the frame clip) and
         whether it is plausible; applied only when the frame is not lost."""

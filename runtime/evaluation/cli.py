@@ -4,6 +4,7 @@ dadiff-eval run --model M --dataset D --results R [--attributes]
 dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R
 dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
+dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections import Counter
@@ -57,6 +59,16 @@ NOTE = (
 )
 
 
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
+    return value
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -70,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,score,anatomy,generate,video,detect,pseudo-label,data,tune}")
+                                metavar="{run,score,anatomy,box-read,generate,video,detect,pseudo-label,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -109,6 +121,14 @@ def build_parser() -> argparse.ArgumentParser:
     anat = sub.add_parser("anatomy", parents=[selection],
                           help="where trackers lose frames: centred share, IoU there, by the target's grey level")
     anat.add_argument("dirs", nargs="+", type=Path, metavar="DIR", help="tracker result folders, or their parent")
+
+    read = sub.add_parser("box-read", parents=[selection],
+                          help="the network's own box around each true box, before the tracker smooths it")
+    read.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
+    read.add_argument("--shifts", nargs="+", type=_finite, metavar="PX",
+                      help="move the search crop's centre this many crop pixels right of the true centre, one read "
+                           "per shift (default: every quarter of the model's stride over one stride: 0 4 8 12 at 16)")
+    read.add_argument("--threads", type=positive_int, help="onnxruntime threads (default: one per physical core)")
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
     gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
@@ -506,6 +526,18 @@ def cmd_pseudo_label(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_box_read(args: argparse.Namespace) -> int:
+    from ..tracker import Tracker
+    from .box_read import box_read, format_box_read
+
+    tracker = Tracker.load(args.model, threads=args.threads)
+    stride = tracker.geometry.stride
+    shifts = args.shifts or [stride * k / 4 for k in range(4)]
+    dataset = load_dataset(args.dataset).select(args.sequences)
+    print(format_box_read(dataset, box_read(tracker, dataset, shifts)))
+    return 0
+
+
 def cmd_tune(args: argparse.Namespace) -> int:
     from ..tracker import Tracker
     from .tune import (
@@ -564,7 +596,8 @@ def cmd_data(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "generate": cmd_generate,
+    commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "box-read": cmd_box_read,
+                "generate": cmd_generate,
                 "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "data": cmd_data,
                 "tune": cmd_tune}
     try:

@@ -1,0 +1,86 @@
+"""The network's own box where the target is known: `dadiff-eval box-read`.
+
+Each frame's search crop is cut around the true box at its true size (its centre moved by a shift in crop
+pixels), the search graph runs once, and the box is read before the tracker smooths, bounds or holds it
+(`Tracker.look`). Tracking mixes the network's box error with its own history; this reads the first alone.
+With a stride-16 score map a target falls anywhere between two grid points, so the read is taken at several
+shifts (by default every quarter of the stride) and their mean is what tracking meets on average.
+Reported per shift: the median log ratio of the box's width and height to the truth, over all frames and by
+thirds of the true width (frame pixels).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..tracker import Tracker
+from .datasets import Dataset
+from .evaluate import check_first_box, read_frame
+
+
+@dataclass(frozen=True)
+class BoxRead:
+    """Median log(w / true w) and log(h / true h) at one shift, over all frames and per width third."""
+
+    shift: float
+    width: float
+    height: float
+    thirds: tuple[tuple[float, float, float, float], ...]  # (low px, high px, width, height)
+    frames: int
+
+
+def read_ratios(tracker: Tracker, dataset: Dataset, shift: float) -> np.ndarray:
+    """(true width, log width ratio, log height ratio) per frame after the first of every sequence."""
+    rows = []
+    for seq in dataset.sequences:
+        check_first_box(seq.name, seq.boxes[0])
+        tracker.init(read_frame(seq.frames[0]), tuple(seq.boxes[0]))
+        for path, box in zip(seq.frames[1:], seq.boxes[1:], strict=False):
+            if not (np.isfinite(box).all() and box[2] > 1 and box[3] > 1):
+                continue  # the target is not in the frame (OTB/UAV123 mark it so)
+            _, _, w, h = tracker.look(read_frame(path), tuple(box), (shift, 0.0))
+            rows.append((box[2], np.log(w / box[2]), np.log(h / box[3])))
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def summarise(shift: float, rows: np.ndarray) -> BoxRead:
+    edges = np.quantile(rows[:, 0], [0, 1 / 3, 2 / 3, 1]) if len(rows) else np.zeros(4)
+    thirds = []
+    for i, (low, high) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        inside = (rows[:, 0] >= low) & ((rows[:, 0] < high) if i < 2 else (rows[:, 0] <= high))
+        thirds.append((float(low), float(high), *_medians(rows[inside])))
+    return BoxRead(shift, *_medians(rows), tuple(thirds), len(rows))
+
+
+def _medians(rows: np.ndarray) -> tuple[float, float]:
+    if not len(rows):
+        return float("nan"), float("nan")
+    return float(np.median(rows[:, 1])), float(np.median(rows[:, 2]))
+
+
+def box_read(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[BoxRead]:
+    return [summarise(shift, read_ratios(tracker, dataset, shift)) for shift in shifts]
+
+
+def format_box_read(dataset: Dataset, reads: Sequence[BoxRead]) -> str:
+    """A table: one row per shift and, for several shifts, their mean (what tracking meets on average)."""
+    first = reads[0]
+    heads = [f"{low:.0f}-{high:.0f} px w / h" for low, high, _, _ in first.thirds]
+    lines = [f"{dataset.name}: the network's box read around the true box, median log(box / true) "
+             f"({first.frames} frames)",
+             f"{'shift (crop px)':<16} {'width':>7} {'height':>7}   " + "   ".join(f"{h:>20}" for h in heads)]
+
+    def row(label: str, width: float, height: float, thirds: Sequence[tuple[float, float]]) -> str:
+        cells = "   ".join(f"{f'{w:+.3f} / {h:+.3f}':>20}" for w, h in thirds)
+        return f"{label:<16} {width:>+7.3f} {height:>+7.3f}   {cells}"
+
+    for r in reads:
+        lines.append(row(f"{r.shift:g}", r.width, r.height, [(w, h) for _, _, w, h in r.thirds]))
+    if len(reads) > 1:
+        mean = [float(np.mean([r.thirds[i][k] for r in reads])) for i in range(3) for k in (2, 3)]
+        lines.append(row("mean", float(np.mean([r.width for r in reads])), float(np.mean([r.height for r in reads])),
+                         list(zip(mean[::2], mean[1::2], strict=True))))
+    return "\n".join(lines)

@@ -1,0 +1,74 @@
+"""`Tracker.look` and `dadiff-eval box-read`: the network's own box around a known box, before the tracker's
+smoothing, and the state untouched; the summary by width thirds; the command on a small generated set."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_runtime_plausible import FRAME, ScriptedBackend
+
+from dadiff.runtime import Tracker
+from dadiff.runtime.evaluation.box_read import summarise
+from dadiff.runtime.evaluation.cli import main
+from dadiff.runtime.evaluation.scenes import write_benchmark
+
+
+def test_look_reads_the_networks_box_where_the_crop_was_cut_and_leaves_the_state() -> None:
+    """The scripted network proposes 20 crop px either side of the centre cell: `look` returns that box in
+    frame pixels around the shifted crop centre, and the next update is the one a tracker that never
+    looked gives."""
+    looking, plain = Tracker(ScriptedBackend([0.9], 20.0)), Tracker(ScriptedBackend([0.9], 20.0))
+    for tracker in (looking, plain):
+        tracker.init(FRAME, (100, 100, 40, 40))
+    x, y, w, h = looking.look(FRAME, (200, 150, 40, 40), (8.0, 0.0))
+    scale = 127 / 80  # crop px per frame px: context side sqrt((40 + 40) * (40 + 40))
+    assert w == pytest.approx(40 / scale) and h == pytest.approx(40 / scale)
+    assert x + w / 2 == pytest.approx(219.5 + 8 / scale) and y + h / 2 == pytest.approx(169.5)
+    looking.backend.calls = 0  # the scripted scores restart for both
+    assert looking.update(FRAME).box == plain.update(FRAME).box
+
+
+def test_look_before_init_and_a_bad_box_are_refused() -> None:
+    tracker = Tracker(ScriptedBackend([0.9], 20.0))
+    with pytest.raises(RuntimeError, match="before init"):
+        tracker.look(FRAME, (1, 1, 10, 10))
+    tracker.init(FRAME, (100, 100, 40, 40))
+    with pytest.raises(ValueError, match="zero or negative size"):
+        tracker.look(FRAME, (1, 1, 0, 10))
+
+
+def test_summary_is_the_median_log_ratio_overall_and_by_thirds_of_the_true_width() -> None:
+    widths = np.arange(10.0, 100.0, 1.0)  # 90 frames: thirds 10-39, 40-69, 70-99 px
+    log_w = np.where(widths < 40, 0.2, np.where(widths < 70, 0.1, -0.1))
+    rows = np.stack([widths, log_w, -log_w], axis=1)
+    read = summarise(8.0, rows)
+    assert (read.shift, read.frames, read.width, read.height) == (8.0, 90, 0.1, -0.1)
+    assert [round(t[2], 3) for t in read.thirds] == [0.2, 0.1, -0.1]
+    assert [round(t[3], 3) for t in read.thirds] == [-0.2, -0.1, 0.1]
+    assert math.isclose(read.thirds[0][0], 10) and math.isclose(read.thirds[2][1], 99)
+
+
+def test_box_read_command_prints_one_row_per_shift_and_their_mean(tmp_path, capsys) -> None:
+    root = write_benchmark(tmp_path / "bench", sequences=1, frames=5, seed=4, size=(320, 180), workers=1)
+    assert main(["box-read", "--dataset", str(root), "--sequences", "*_day", "--shifts", "0", "8",
+                 "--threads", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = {line.split()[0]: line.split()[1:3] for line in lines[2:]}
+    assert list(rows) == ["0", "8", "mean"] and "(4 frames)" in lines[0]
+    assert all(math.isfinite(float(v)) for v in rows["mean"])
+    assert float(rows["mean"][0]) == pytest.approx((float(rows["0"][0]) + float(rows["8"][0])) / 2, abs=1e-3)
+
+
+@pytest.mark.parametrize(("args", "message"), [(["--shifts", "nan"], "expected a finite number, got 'nan'"),
+                                               (["--dataset", "/no/such/set"], "/no/such/set")])
+def test_box_read_bad_input_is_one_line(tmp_path, capsys, args: list[str], message: str) -> None:
+    argv = ["box-read", "--dataset", str(tmp_path), *args] if args[0] != "--dataset" else ["box-read", *args]
+    try:
+        status = main(argv)
+    except SystemExit as e:  # usage errors leave through argparse
+        status = e.code
+    assert status == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("dadiff-eval: error") and message in err[0], err
