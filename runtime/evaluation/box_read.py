@@ -32,18 +32,21 @@ class BoxRead:
     frames: int
 
 
-def read_ratios(tracker: Tracker, dataset: Dataset, shift: float) -> np.ndarray:
-    """(true width, log width ratio, log height ratio) per frame after the first of every sequence."""
-    rows = []
+def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[np.ndarray]:
+    """Per shift: (true width, log width ratio, log height ratio) per frame after the first of every
+    sequence. Each frame is decoded once and read at every shift."""
+    rows: list[list[tuple[float, float, float]]] = [[] for _ in shifts]
     for seq in dataset.sequences:
         check_first_box(seq.name, seq.boxes[0])
         tracker.init(read_frame(seq.frames[0]), tuple(seq.boxes[0]))
         for path, box in zip(seq.frames[1:], seq.boxes[1:], strict=False):
             if not (np.isfinite(box).all() and box[2] > 1 and box[3] > 1):
                 continue  # the target is not in the frame (OTB/UAV123 mark it so)
-            _, _, w, h = tracker.look(read_frame(path), tuple(box), (shift, 0.0))
-            rows.append((box[2], np.log(w / box[2]), np.log(h / box[3])))
-    return np.asarray(rows, dtype=np.float64).reshape(-1, 3)
+            frame = read_frame(path)
+            for kept, shift in zip(rows, shifts, strict=True):
+                _, _, w, h = tracker.look(frame, tuple(box), (shift, 0.0))
+                kept.append((box[2], np.log(w / box[2]), np.log(h / box[3])))
+    return [np.asarray(r, dtype=np.float64).reshape(-1, 3) for r in rows]
 
 
 def summarise(shift: float, rows: np.ndarray) -> BoxRead:
@@ -62,7 +65,7 @@ def _medians(rows: np.ndarray) -> tuple[float, float]:
 
 
 def box_read(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[BoxRead]:
-    return [summarise(shift, read_ratios(tracker, dataset, shift)) for shift in shifts]
+    return [summarise(shift, rows) for shift, rows in zip(shifts, read_ratios(tracker, dataset, shifts), strict=True)]
 
 
 def format_box_read(dataset: Dataset, reads: Sequence[BoxRead]) -> str:
@@ -80,7 +83,7 @@ def format_box_read(dataset: Dataset, reads: Sequence[BoxRead]) -> str:
     for r in reads:
         lines.append(row(f"{r.shift:g}", r.width, r.height, [(w, h) for _, _, w, h in r.thirds]))
     if len(reads) > 1:
-        mean = [float(np.mean([r.thirds[i][k] for r in reads])) for i in range(3) for k in (2, 3)]
-        lines.append(row("mean", float(np.mean([r.width for r in reads])), float(np.mean([r.height for r in reads])),
-                         list(zip(mean[::2], mean[1::2], strict=True))))
+        thirds = [(np.mean([r.thirds[i][2] for r in reads]), np.mean([r.thirds[i][3] for r in reads]))
+                  for i in range(len(first.thirds))]
+        lines.append(row("mean", np.mean([r.width for r in reads]), np.mean([r.height for r in reads]), thirds))
     return "\n".join(lines)
