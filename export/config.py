@@ -64,6 +64,7 @@ class ModelConfig:
     align_heads: int = 8
     align_ffn: int = 2048
     head_search_padding: int = 0       # padding of the head's search-side 3x3 convs (keeps a small map's size)
+    head_upsample: int = 1             # the head answers on a grid this many times finer (tracker.stride / it)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def to_dict(self) -> dict[str, Any]:
@@ -176,6 +177,8 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'align_heads' {cfg.align_heads} does not divide 'channels' {cfg.channels}")
     if not _is_int(cfg.head_search_padding) or cfg.head_search_padding < 0:
         raise ValueError(f"'head_search_padding' is {cfg.head_search_padding!r}; expected an integer >= 0")
+    if not _is_int(cfg.head_upsample) or cfg.head_upsample < 1:
+        raise ValueError(f"'head_upsample' is {cfg.head_upsample!r}; expected an integer >= 1")
 
 
 def _check_tracker_fields(tr: TrackerConfig) -> None:
@@ -195,6 +198,19 @@ def _check_tracker_fields(tr: TrackerConfig) -> None:
         for key in ("lr", "penalty_k", "window_influence"):
             if not _is_number(table.get(key)):
                 raise ValueError(f"'tracker.hp_presets.{name}.{key}' is {table.get(key)!r}; expected a number")
+
+
+def with_head_upsample(cfg: ModelConfig, upsample: int) -> ModelConfig:
+    """`cfg` with a head `upsample` times finer than the one it describes: the tracker's points are
+    stride / upsample apart, (S - 1) * upsample + 1 per side, and start where they started (same origin)."""
+    tr = cfg.tracker
+    if upsample == 1:
+        return cfg
+    if not _is_int(upsample) or upsample < 1 or tr.stride % upsample:
+        raise ValueError(f"'head_upsample' is {upsample!r}; expected an integer >= 1 that divides the stride "
+                         f"{tr.stride}")
+    fine = replace(tr, stride=tr.stride // upsample, score_size=(tr.score_size - 1) * upsample + 1)
+    return replace(cfg, head_upsample=cfg.head_upsample * upsample, tracker=fine)
 
 
 def tracker_metadata(tr: TrackerConfig) -> dict[str, str]:

@@ -67,7 +67,8 @@ class DaDiffNet(nn.Module):
                 raise ValueError(f"unknown alignment layer {cfg.align!r}")
         if cfg.align_residual:  # LayerScale-style gate: the block starts as the identity of the tracker it joins
             self.align_scale = nn.Parameter(torch.zeros(1, c, 1, 1))
-        self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden, cfg.head_search_padding)
+        self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden, cfg.head_search_padding,
+                             cfg.head_upsample)
 
     def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
         feats = self.backbone(img)

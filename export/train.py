@@ -25,7 +25,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint, shape_mismatches
-from .config import ModelConfig, default_config, is_lite0
+from .config import ModelConfig, default_config, is_lite0, with_head_upsample
 from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
 from .losses import (
     align_loss,
@@ -132,7 +132,9 @@ class TrainConfig:
 
 def model_config(cfg: TrainConfig) -> ModelConfig:
     base = default_config(cfg.family)
-    mc = replace(base, **cfg.model) if cfg.model else base
+    overrides = dict(cfg.model or {})
+    upsample = overrides.pop("head_upsample", 1)  # moves the tracker's grid with it
+    mc = with_head_upsample(replace(base, **overrides), upsample)
     return replace(mc, use_dadiff=cfg.stage == "dadiff" and cfg.block)
 
 
@@ -255,7 +257,8 @@ class Trainer:
             return None, None
         from .teacher import TEACHER_STRIDE, NanoTrackTeacher
 
-        if self.net.cfg.tracker.stride != TEACHER_STRIDE or len(self.net.cfg.level_names) != 1:
+        if self.net.cfg.tracker.stride * self.net.cfg.head_upsample != TEACHER_STRIDE or \
+                len(self.net.cfg.level_names) != 1:
             raise ValueError(f"teacher distillation needs a one-level stride-{TEACHER_STRIDE} family "
                              f"(dadiff-mobile), not {self.net.cfg.family}")
         teacher = NanoTrackTeacher(self.cfg.teacher)
@@ -331,8 +334,8 @@ class Trainer:
             total = total + cfg.lambda_night_trc * (out["night_cls"] + cfg.lambda_loc * out["night_loc"])
             logs |= {"night_cls": out["night_cls"].item(), "night_loc": out["night_loc"].item()}
         if self.teacher is not None:
-            t_feat, t_prob, t_loc = (t.to(self.device) for t in self.teacher(cpu_batch["z"], cpu_batch["x"],
-                                                                              cls.shape[-1]))
+            t_feat, t_prob, t_loc = (t.to(self.device) for t in self.teacher(
+                cpu_batch["z"], cpu_batch["x"], cls.shape[-1], self.net.cfg.head_upsample))
             l_distill = distill_cls_loss(cls, t_prob) + distill_loc_loss(loc, t_loc, t_prob)
             if cfg.lambda_night_distill and out["night_cls_map"] is not None:
                 # the teacher sees the day crop, the student the same crop rendered at night

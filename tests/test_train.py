@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -197,6 +198,19 @@ def test_teacher_distillation_trains_the_mobile_family_and_stays_out_of_the_mode
 
     model_keys = set(load_checkpoint(tmp_path / "final.pt").model.state_dict())
     assert model_keys == set(trainer.net.state_dict()) and not any("adapter" in k for k in model_keys)
+
+
+@pytest.mark.skipif(not TEACHER.is_dir(), reason="NanoTrack v3 teacher weights are not at ../shared/weights")
+def test_teacher_distillation_reaches_a_head_on_a_finer_grid(tmp_path, image_folder):
+    """head_upsample = 2: the teacher's 13 x 13 maps are carried onto the student's 25 x 25 points."""
+    cfg = config(tmp_path, image_folder, stage="baseline", family="dadiff-mobile", init="imagenet", steps=2,
+                 teacher=str(TEACHER), freeze_backbone_blocks=2, model={"head_upsample": 2})
+    trainer = Trainer(cfg)
+    assert trainer.net.cfg.tracker.stride == 8
+    batch = next(iter(data_loader(cfg, trainer.net, 0)))
+    assert batch["label"].shape[-1] == 25
+    logs = trainer.step_on(batch)
+    assert math.isfinite(logs["distill"]) and logs["distill"] > 0
 
 
 def test_night_tracking_loss_on_rendered_night_pairs(tmp_path, image_folder):
