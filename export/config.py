@@ -213,6 +213,14 @@ def with_head_upsample(cfg: ModelConfig, upsample: int) -> ModelConfig:
     return replace(cfg, head_upsample=cfg.head_upsample * upsample, tracker=fine)
 
 
+def with_overrides(cfg: ModelConfig, overrides: dict[str, Any]) -> ModelConfig:
+    """`cfg` with a training config's `model = {...}` table applied; `head_upsample` moves the tracker's grid
+    along with the head (`with_head_upsample`)."""
+    rest = dict(overrides)
+    upsample = rest.pop("head_upsample", 1)
+    return with_head_upsample(replace(cfg, **rest), upsample)
+
+
 def tracker_metadata(tr: TrackerConfig) -> dict[str, str]:
     """The tracker keys of the exported metadata, as the runtime reads them (docs/model-format.md)."""
     hp = tr.hp_presets[tr.default_preset]

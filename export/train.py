@@ -25,7 +25,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint, shape_mismatches
-from .config import ModelConfig, default_config, is_lite0, with_head_upsample
+from .config import ModelConfig, default_config, is_lite0, with_overrides
 from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
 from .losses import (
     align_loss,
@@ -132,9 +132,7 @@ class TrainConfig:
 
 def model_config(cfg: TrainConfig) -> ModelConfig:
     base = default_config(cfg.family)
-    overrides = dict(cfg.model or {})
-    upsample = overrides.pop("head_upsample", 1)  # moves the tracker's grid with it
-    mc = with_head_upsample(replace(base, **overrides), upsample)
+    mc = with_overrides(base, cfg.model or {})
     return replace(mc, use_dadiff=cfg.stage == "dadiff" and cfg.block)
 
 

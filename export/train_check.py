@@ -7,13 +7,13 @@ is one line naming the file and the key instead of a traceback minutes into a ru
 from __future__ import annotations
 
 import math
-from dataclasses import fields, replace
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 from dadiff.runtime.evaluation.night import NIGHT_STYLES
 
-from .config import FAMILIES, ModelConfig, default_config, validate_config
+from .config import FAMILIES, ModelConfig, default_config, validate_config, with_overrides
 
 # (low, inclusive) per numeric key; keys not listed only need the right type.
 MINIMUM: dict[str, tuple[float, bool]] = {
@@ -89,7 +89,7 @@ def _check_model(values: dict[str, Any]) -> None:
         raise ValueError(f"'model' has unknown keys {', '.join(unknown)} (known: {', '.join(sorted(known))})")
     family = values.get("family", "dadiff-lite")
     try:
-        validate_config(replace(default_config(family), **overrides))
+        validate_config(with_overrides(default_config(family), overrides))
     except (TypeError, ValueError) as e:
         raise ValueError(f"'model': {e}") from None
 
