@@ -204,11 +204,11 @@ def with_head_upsample(cfg: ModelConfig, upsample: int) -> ModelConfig:
     """`cfg` with a head `upsample` times finer than the one it describes: the tracker's points are
     stride / upsample apart, (S - 1) * upsample + 1 per side, and start where they started (same origin)."""
     tr = cfg.tracker
-    if upsample == 1:
-        return cfg
     if not _is_int(upsample) or upsample < 1 or tr.stride % upsample:
         raise ValueError(f"'head_upsample' is {upsample!r}; expected an integer >= 1 that divides the stride "
                          f"{tr.stride}")
+    if upsample == 1:
+        return cfg
     fine = replace(tr, stride=tr.stride // upsample, score_size=(tr.score_size - 1) * upsample + 1)
     return replace(cfg, head_upsample=cfg.head_upsample * upsample, tracker=fine)
 

@@ -28,6 +28,9 @@ def test_the_tracker_grid_moves_with_the_head():
     validate_config(fine)
     with pytest.raises(ValueError, match="'head_upsample' is 3; expected an integer >= 1 that divides the stride 16"):
         with_head_upsample(coarse, 3)
+    for not_an_integer in (True, 1.0, "2"):  # a TOML true or 1.0 is not silently the coarse grid
+        with pytest.raises(ValueError, match="'head_upsample' is"):
+            with_head_upsample(coarse, not_an_integer)
     with pytest.raises(ValueError, match="'head_upsample' is 0"):
         validate_config(replace(coarse, head_upsample=0))
 
