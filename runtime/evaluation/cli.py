@@ -127,7 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
     read.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
     read.add_argument("--shifts", nargs="+", type=_finite, metavar="PX",
                       help="move the search crop's centre this many crop pixels right of the true centre, one read "
-                           "per shift (default: every quarter of the model's stride over one stride: 0 4 8 12 at 16)")
+                           "per shift (default: every quarter of the model's stride over one stride: 0 4 8 12 at 16; "
+                           "the stride of its points, so for a finer head give its features' cells)")
     read.add_argument("--threads", type=positive_int, help="onnxruntime threads (default: one per physical core)")
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
