@@ -13,6 +13,7 @@ LITE0_TRUNKS: dict[str, tuple[int, int | None, tuple[int, ...]]] = {
     "efficientnet-lite0": (10, 5, (7, 10)),      # stride 8 (atrous from block 5), blocks 7 + 10 fused
     "efficientnet-lite0-s16": (6, None, (6,)),   # stride 16, stops in stage 3 (80 channels)
 }
+LITE0_STRIDE2_BLOCKS = (1, 3, 5, 11)  # the Lite0 blocks that subsample (efficientnet_lite.BLOCK_SPECS)
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
 HP_PRESETS: dict[str, dict[str, float]] = {
@@ -65,12 +66,14 @@ class ModelConfig:
     align_ffn: int = 2048
     head_search_padding: int = 0       # padding of the head's search-side 3x3 convs (keeps a small map's size)
     head_upsample: int = 1             # the head answers on a grid this many times finer (tracker.stride / it)
+    antialias_blocks: tuple[int, ...] = ()  # Lite0 stride-2 blocks that blur before subsampling (ours)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["level_names"] = list(self.level_names)
         d["backbone_channels"] = list(self.backbone_channels)
+        d["antialias_blocks"] = list(self.antialias_blocks)
         return d
 
     @classmethod
@@ -89,6 +92,7 @@ class ModelConfig:
         tracker = TrackerConfig(**raw_tracker)
         d["level_names"] = tuple(d["level_names"])
         d["backbone_channels"] = tuple(d["backbone_channels"])
+        d["antialias_blocks"] = _as_tuple(d.get("antialias_blocks", ()))
         return cls(tracker=tracker, **d)
 
     def with_steps(self, steps: int) -> ModelConfig:
@@ -137,6 +141,17 @@ _TRACKER_INTS = ("exemplar_size", "instance_size", "stride", "score_size")
 ALIGNS = ("released", "paper", "none")
 
 
+def _as_tuple(value: Any) -> Any:
+    """A TOML or JSON list as the tuple a frozen config holds; anything else as it is, for the checks."""
+    return tuple(value) if isinstance(value, list) else value
+
+
+def lite0_subsampling_blocks(backbone: str) -> tuple[int, ...]:
+    """The stride-2 blocks a Lite0 trunk builds (a dilated block keeps stride 1)."""
+    last, dilate, _ = LITE0_TRUNKS[backbone]
+    return tuple(b for b in LITE0_STRIDE2_BLOCKS if b <= last and (dilate is None or b < dilate))
+
+
 def _is_int(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -179,6 +194,20 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'head_search_padding' is {cfg.head_search_padding!r}; expected an integer >= 0")
     if not _is_int(cfg.head_upsample) or cfg.head_upsample < 1:
         raise ValueError(f"'head_upsample' is {cfg.head_upsample!r}; expected an integer >= 1")
+    _check_antialias(cfg)
+
+
+def _check_antialias(cfg: ModelConfig) -> None:
+    blocks = cfg.antialias_blocks
+    if not isinstance(blocks, tuple) or not all(_is_int(b) for b in blocks):
+        raise ValueError(f"'antialias_blocks' is {blocks!r}; expected a list of block numbers")
+    if not blocks:
+        return
+    allowed = lite0_subsampling_blocks(cfg.backbone) if is_lite0(cfg.backbone) else ()
+    bad = [b for b in blocks if b not in allowed]
+    if bad:
+        raise ValueError(f"'antialias_blocks' is {list(blocks)}; {cfg.backbone} subsamples in blocks "
+                         f"{list(allowed) or 'none of ours'}")
 
 
 def _check_tracker_fields(tr: TrackerConfig) -> None:
@@ -218,6 +247,8 @@ def with_overrides(cfg: ModelConfig, overrides: dict[str, Any]) -> ModelConfig:
     along with the head (`with_head_upsample`)."""
     rest = dict(overrides)
     upsample = rest.pop("head_upsample", 1)
+    if "antialias_blocks" in rest:
+        rest["antialias_blocks"] = _as_tuple(rest["antialias_blocks"])
     return with_head_upsample(replace(cfg, **rest), upsample)
 
 

@@ -36,7 +36,8 @@ def build_backbone(cfg: ModelConfig) -> nn.Module:
         from .efficientnet_lite import EfficientNetLite0
 
         last, dilate, outs = LITE0_TRUNKS[cfg.backbone]
-        return EfficientNetLite0(last_block=last, dilate_from_block=dilate, out_blocks=outs)
+        return EfficientNetLite0(last_block=last, dilate_from_block=dilate, out_blocks=outs,
+                                 antialias_blocks=cfg.antialias_blocks)
     raise ValueError(f"unknown backbone {cfg.backbone!r}")
 
 
