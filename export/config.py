@@ -13,7 +13,9 @@ LITE0_TRUNKS: dict[str, tuple[int, int | None, tuple[int, ...]]] = {
     "efficientnet-lite0": (10, 5, (7, 10)),      # stride 8 (atrous from block 5), blocks 7 + 10 fused
     "efficientnet-lite0-s16": (6, None, (6,)),   # stride 16, stops in stage 3 (80 channels)
 }
-LITE0_STRIDE2_BLOCKS = (1, 3, 5, 11)  # the Lite0 blocks that subsample (efficientnet_lite.BLOCK_SPECS)
+LITE0_STRIDE2_BLOCKS = (1, 3, 5, 11)
+FINE_SKIP_BACKBONE = "efficientnet-lite0-s16"  # `fine_skip` folds its block 4 (stride 8, 40 channels) into 16 px cells
+FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS = 4, 40  # the Lite0 blocks that subsample (efficientnet_lite.BLOCK_SPECS)
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
 HP_PRESETS: dict[str, dict[str, float]] = {
@@ -67,6 +69,7 @@ class ModelConfig:
     head_search_padding: int = 0       # padding of the head's search-side 3x3 convs (keeps a small map's size)
     head_upsample: int = 1             # the head answers on a grid this many times finer (tracker.stride / it)
     antialias_blocks: tuple[int, ...] = ()  # Lite0 stride-2 blocks that blur before subsampling (ours)
+    fine_skip: bool = False            # stride-8 block 4, space-to-depth, added to the neck through a gate (ours)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def to_dict(self) -> dict[str, Any]:
@@ -177,7 +180,7 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'ddim_start_t' is {cfg.ddim_start_t!r}; expected an integer >= 0 or none")
     if cfg.align not in ALIGNS:
         raise ValueError(f"'align' is {cfg.align!r}; expected one of {', '.join(ALIGNS)}")
-    for name in ("use_dadiff", "align_residual", "denoiser_attention"):
+    for name in ("use_dadiff", "align_residual", "denoiser_attention", "fine_skip"):
         if not isinstance(getattr(cfg, name), bool):
             raise ValueError(f"'{name}' is {getattr(cfg, name)!r}; expected true or false")
     levels = (cfg.level_names, cfg.backbone_channels)
@@ -195,6 +198,8 @@ def _check_model_fields(cfg: ModelConfig) -> None:
     if not _is_int(cfg.head_upsample) or cfg.head_upsample < 1:
         raise ValueError(f"'head_upsample' is {cfg.head_upsample!r}; expected an integer >= 1")
     _check_antialias(cfg)
+    if cfg.fine_skip and cfg.backbone != FINE_SKIP_BACKBONE:
+        raise ValueError(f"'fine_skip' needs the {FINE_SKIP_BACKBONE} trunk (dadiff-mobile), not {cfg.backbone}")
 
 
 def _check_antialias(cfg: ModelConfig) -> None:

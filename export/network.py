@@ -13,10 +13,10 @@ import torch
 from torch import nn
 
 from .align import ReleasedAlignLayer, TrackingOrientedLayer
-from .config import LITE0_TRUNKS, ModelConfig, is_lite0
+from .config import FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS, LITE0_TRUNKS, ModelConfig, is_lite0
 from .denoiser import DDIMSampler, Denoiser
 from .head import MultiBAN
-from .neck import AdjustAllLayer
+from .neck import AdjustAllLayer, FineSkip
 from .resnet import AtrousResNet50
 
 
@@ -36,6 +36,8 @@ def build_backbone(cfg: ModelConfig) -> nn.Module:
         from .efficientnet_lite import EfficientNetLite0
 
         last, dilate, outs = LITE0_TRUNKS[cfg.backbone]
+        if cfg.fine_skip:
+            outs = (FINE_SKIP_BLOCK, *outs)
         return EfficientNetLite0(last_block=last, dilate_from_block=dilate, out_blocks=outs,
                                  antialias_blocks=cfg.antialias_blocks)
     raise ValueError(f"unknown backbone {cfg.backbone!r}")
@@ -48,6 +50,8 @@ class DaDiffNet(nn.Module):
         c = cfg.channels
         self.backbone = build_backbone(cfg)
         self.neck = AdjustAllLayer(cfg.level_names, cfg.backbone_channels, c, cfg.template_feature_size)
+        if cfg.fine_skip:
+            self.fine_skip = FineSkip(FINE_SKIP_CHANNELS, c, cfg.template_feature_size)
         self.diffusion = Denoiser(2 * c, cfg.denoiser_ch, c, cfg.denoiser_res_blocks, cfg.denoiser_attention,
                                   cfg.denoiser_groups)
         self.sampler = DDIMSampler(cfg.diffusion_total_steps, cfg.ddim_steps, cfg.ddim_start_t)
@@ -71,11 +75,18 @@ class DaDiffNet(nn.Module):
         self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden, cfg.head_search_padding,
                              cfg.head_upsample)
 
-    def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
+    def trunk(self, img: torch.Tensor) -> tuple[torch.Tensor | None, list[torch.Tensor]]:
+        """(the stride-8 map for `fine_skip` or None, the levels the neck takes)."""
         feats = self.backbone(img)
+        fine = None
+        if self.cfg.fine_skip:
+            fine, *feats = feats
         if is_lite0(self.cfg.backbone) and len(feats) > 1:
             feats = [torch.cat(feats, dim=1)]  # one fused level
-        return feats
+        return fine, feats
+
+    def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
+        return self.trunk(img)[1]
 
     def diffuse(self, neck: list[torch.Tensor], noise: torch.Tensor) -> list[list[torch.Tensor]]:
         """Run the sampler on every level; levels of one shape go through the denoiser as one batch."""
@@ -87,7 +98,10 @@ class DaDiffNet(nn.Module):
         return [self.sampler(self.diffusion, f, noise.expand(n, -1, -1, -1)) for f in neck]
 
     def branch(self, img: torch.Tensor, noise: torch.Tensor, template: bool) -> BranchOutput:
-        neck = self.neck(self.backbone_features(img), template)
+        fine, feats = self.trunk(img)
+        neck = self.neck(feats, template)
+        if fine is not None:
+            neck = [neck[0] + self.fine_skip(fine, template)]
         if not self.cfg.use_dadiff:
             return BranchOutput(neck, [[f] for f in neck], neck)
         states = self.diffuse(neck, noise)

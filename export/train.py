@@ -147,9 +147,10 @@ def build_network(cfg: TrainConfig) -> DaDiffNet:
     source = load_checkpoint(cfg.init).model.state_dict()  # strict for the checkpoint's own config
     own = net.state_dict()
     # the stages share every key; an ablation without the tracking-oriented layer only drops align_track.*, and
-    # a residual DaDiff block joining a trained tracker adds its gate align_scale (from 0)
+    # a residual DaDiff block joining a trained tracker adds its gate align_scale (from 0), and fine_skip its
+    # branch (gated from 0 too)
     differ = sorted((set(source) ^ set(own)) - {k for k in set(source) | set(own)
-                                                if k.startswith("align_track.") or k == "align_scale"})
+                                                if k.startswith(("align_track.", "fine_skip.")) or k == "align_scale"})
     if differ:
         raise ValueError(f"{cfg.init}: does not fit the configured model: {', '.join(differ[:5])}")
     reshaped = shape_mismatches(own, source)
