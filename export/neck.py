@@ -6,6 +6,11 @@ import torch
 from torch import nn
 
 
+def centre_crop(x: torch.Tensor, size: int) -> torch.Tensor:
+    start = (x.shape[3] - size) // 2
+    return x[:, :, start:start + size, start:start + size]
+
+
 class AdjustLayer(nn.Module):
     def __init__(self, in_ch: int, out_ch: int, center_size: int) -> None:
         super().__init__()
@@ -14,10 +19,8 @@ class AdjustLayer(nn.Module):
 
     def forward(self, x: torch.Tensor, template: bool) -> torch.Tensor:
         x = self.downsample(x)
-        if template:  # keep the centre: 15 -> 4..11 for SiamBAN (the release's x[:, :, 4:11, 4:11]), 16 -> 4..12
-            start = (x.shape[3] - self.center_size) // 2
-            x = x[:, :, start:start + self.center_size, start:start + self.center_size]
-        return x
+        # a template keeps the centre: 15 -> 4..11 for SiamBAN (the release's x[:, :, 4:11, 4:11]), 16 -> 4..12
+        return centre_crop(x, self.center_size) if template else x
 
 
 class AdjustAllLayer(nn.Module):
@@ -51,7 +54,4 @@ class FineSkip(nn.Module):
 
     def forward(self, fine: torch.Tensor, template: bool) -> torch.Tensor:
         x = self.conv(nn.functional.pixel_unshuffle(fine, 2))
-        if template:  # the neck's centre crop, cell for cell
-            start = (x.shape[3] - self.center_size) // 2
-            x = x[:, :, start:start + self.center_size, start:start + self.center_size]
-        return x
+        return centre_crop(x, self.center_size) if template else x  # the neck's crop, cell for cell
