@@ -36,7 +36,6 @@ class AdjustAllLayer(nn.Module):
                 for name, f in zip(self.level_names, features, strict=True)]
 
 
-
 class FineSkip(nn.Module):
     """Stride-8 features folded into the stride-16 cells and added to the neck's output (``fine_skip``, ours).
 
