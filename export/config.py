@@ -13,9 +13,8 @@ LITE0_TRUNKS: dict[str, tuple[int, int | None, tuple[int, ...]]] = {
     "efficientnet-lite0": (10, 5, (7, 10)),      # stride 8 (atrous from block 5), blocks 7 + 10 fused
     "efficientnet-lite0-s16": (6, None, (6,)),   # stride 16, stops in stage 3 (80 channels)
 }
-LITE0_STRIDE2_BLOCKS = (1, 3, 5, 11)
 FINE_SKIP_BACKBONE = "efficientnet-lite0-s16"  # `fine_skip` folds its block 4 (stride 8, 40 channels) into 16 px cells
-FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS = 4, 40  # the Lite0 blocks that subsample (efficientnet_lite.BLOCK_SPECS)
+FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS = 4, 40
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
 HP_PRESETS: dict[str, dict[str, float]] = {
@@ -150,9 +149,11 @@ def _as_tuple(value: Any) -> Any:
 
 
 def lite0_subsampling_blocks(backbone: str) -> tuple[int, ...]:
-    """The stride-2 blocks a Lite0 trunk builds (a dilated block keeps stride 1)."""
+    """The stride-2 blocks a Lite0 trunk builds, as the trunk itself computes them."""
+    from .efficientnet_lite import subsampling_blocks  # torch; only a config that names such blocks needs it
+
     last, dilate, _ = LITE0_TRUNKS[backbone]
-    return tuple(b for b in LITE0_STRIDE2_BLOCKS if b <= last and (dilate is None or b < dilate))
+    return subsampling_blocks(last, dilate)
 
 
 def _is_int(value: object) -> bool:

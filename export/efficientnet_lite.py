@@ -63,6 +63,12 @@ def _block_specs() -> list[tuple[int, int, int, int, int]]:
 BLOCK_SPECS: tuple[tuple[int, int, int, int, int], ...] = tuple(_block_specs())
 assert len(BLOCK_SPECS) == NUM_BLOCKS
 
+
+def subsampling_blocks(last_block: int, dilate_from_block: int | None) -> tuple[int, ...]:
+    """The blocks 0..last_block that subsample (stride 2); from ``dilate_from_block`` on they keep stride 1."""
+    return tuple(i for i in range(last_block + 1)
+                 if BLOCK_SPECS[i][1] == 2 and (dilate_from_block is None or i < dilate_from_block))
+
 # Padding: upstream reproduces TF "SAME" padding, which for a stride-2 conv on an even-sized input pads one
 # pixel more at the bottom/right than at the top/left (on odd sizes it is symmetric). We use plain symmetric
 # padding (k // 2 * dilation): it exports as an ordinary Conv pads attribute with no input-size-dependent Pad
@@ -195,11 +201,10 @@ class EfficientNetLite0(nn.Module):
             bad = [b for b in out_blocks if not 0 <= b <= last_block]
             if bad:
                 raise ValueError(f"out_blocks {bad} outside the built blocks 0..{last_block}")
-        strided = [i for i in range(last_block + 1) if BLOCK_SPECS[i][1] == 2
-                   and (dilate_from_block is None or i < dilate_from_block)]
+        strided = subsampling_blocks(last_block, dilate_from_block)
         bad = [b for b in antialias_blocks if b not in strided]
         if bad:
-            raise ValueError(f"antialias_blocks {bad}: not a stride-2 block of this trunk (those are {strided})")
+            raise ValueError(f"antialias_blocks {bad}: not a stride-2 block of this trunk (those are {list(strided)})")
         self.last_block = last_block
         self.dilate_from_block = dilate_from_block
         self.out_blocks = tuple(out_blocks)

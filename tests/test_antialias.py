@@ -10,19 +10,25 @@ ort = pytest.importorskip("onnxruntime")
 from dadiff.export.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
 from dadiff.export.cli import main  # noqa: E402
 from dadiff.export.config import (  # noqa: E402
-    LITE0_STRIDE2_BLOCKS,
     ModelConfig,
     lite_config,
     mobile_config,
     validate_config,
     with_overrides,
 )
-from dadiff.export.efficientnet_lite import BLOCK_SPECS, BlurDownsample, EfficientNetLite0  # noqa: E402
+from dadiff.export.efficientnet_lite import (  # noqa: E402
+    BLOCK_SPECS,
+    BlurDownsample,
+    EfficientNetLite0,
+    subsampling_blocks,
+)
 from dadiff.export.network import build_model  # noqa: E402
 
 
-def test_the_config_table_names_the_blocks_that_subsample():
-    assert LITE0_STRIDE2_BLOCKS == tuple(i for i, spec in enumerate(BLOCK_SPECS) if spec[1] == 2)
+def test_the_blocks_that_subsample():
+    assert subsampling_blocks(15, None) == tuple(i for i, spec in enumerate(BLOCK_SPECS) if spec[1] == 2)
+    assert subsampling_blocks(15, None) == (1, 3, 5, 11)
+    assert subsampling_blocks(10, 5) == (1, 3)  # dadiff-lite: atrous from block 5
 
 
 def test_blur_downsample_halves_the_map_and_keeps_a_flat_one_flat():
