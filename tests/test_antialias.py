@@ -82,13 +82,3 @@ def test_an_antialiased_model_exports_with_parity(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0 and "OK" in out
 
-
-def test_a_bad_block_in_a_training_config_is_one_line_naming_the_file(tmp_path, capsys):
-    from dadiff.export.train import main as train_main
-
-    bad = tmp_path / "bad.toml"
-    bad.write_text('[train]\nstage = "dadiff"\nfamily = "dadiff-mobile"\nsteps = 1\n'
-                   'model = { antialias_blocks = [4] }\n')
-    assert train_main(["--config", str(bad), "--out", str(tmp_path / "run")]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and str(bad) in err and "'antialias_blocks' is [4]" in err

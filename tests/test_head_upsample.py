@@ -111,13 +111,3 @@ def test_the_fine_round_config_starts_from_the_shipped_state():
     net = build_network(cfg)
     assert net.cfg.head_upsample == 2 and net.cfg.tracker.stride == 8
 
-
-def test_a_factor_that_does_not_divide_the_stride_is_one_line_naming_the_file(tmp_path, capsys):
-    from dadiff.export.train import main as train_main
-
-    bad = tmp_path / "bad.toml"
-    bad.write_text('[train]\nstage = "dadiff"\nfamily = "dadiff-mobile"\nsteps = 1\n'
-                   'model = { head_upsample = 3 }\n')
-    assert train_main(["--config", str(bad), "--out", str(tmp_path / "run")]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and str(bad) in err and "'head_upsample' is 3" in err and "stride 16" in err

@@ -275,6 +275,21 @@ def test_bad_config_is_one_line(tmp_path, capsys):
     assert err.count("\n") == 1 and "unknown config keys: bogus" in err
 
 
+@pytest.mark.parametrize(("table", "expected"), [
+    ("head_upsample = 3", ("'head_upsample' is 3", "stride 16")),  # a factor that does not divide the stride
+    ("antialias_blocks = [4]", ("'antialias_blocks' is [4]",)),     # a block that does not subsample
+])
+def test_a_bad_model_table_is_one_line_naming_the_file(tmp_path, capsys, table, expected):
+    """The run and the config check apply `model = {...}` through one function (`with_overrides`)."""
+    from dadiff.export.train import main
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text(f'[train]\nstage = "dadiff"\nfamily = "dadiff-mobile"\nsteps = 1\nmodel = {{ {table} }}\n')
+    assert main(["--config", str(bad), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(bad) in err and all(part in err for part in expected)
+
+
 def test_seed_and_out_on_the_command_line_override_the_config(tmp_path, image_folder, capsys):
     """A second run of one recipe: the same TOML, another seed and folder; the state records the seed used."""
     from dadiff.export.checkpoint import read_checkpoint_file
