@@ -121,11 +121,14 @@ def to_chw(img: np.ndarray) -> torch.Tensor:
 class SceneSource:
     """Pairs of frames from generated scenes: over scikit-image's training photos (`source` "skimage") or
     over the real-photo library's training split (`source` "library": cut-outs over aerial textures and
-    photos, after `dadiff-eval data fetch`)."""
+    photos, after `dadiff-eval data fetch`). `cutouts`: a folder `dadiff-eval cutouts` wrote, whose cut-outs
+    are the library scenes' targets instead of the library's own (people cut out of labelled video)."""
 
     def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4,
-                 source: str = "skimage", companions: float = 0.0, stretch: float = 0.0) -> None:
-        from dadiff.runtime.evaluation.library_scenes import open_scene_library
+                 source: str = "skimage", companions: float = 0.0, stretch: float = 0.0,
+                 cutouts: str | Path | None = None) -> None:
+        from dadiff.runtime.evaluation.library import LibraryError
+        from dadiff.runtime.evaluation.library_scenes import library_images, open_scene_library
         from dadiff.runtime.evaluation.photos import load_photos
         from dadiff.runtime.evaluation.scenes import SceneError
 
@@ -134,10 +137,17 @@ class SceneSource:
         for option, share in (("companions", companions), ("stretch", stretch)):
             if not 0 <= share <= 1 or (share and source != "library"):
                 raise ValueError(f"{option} is {share}; expected a share 0-1 of library scenes")
+        if cutouts is not None and source != "library":
+            raise ValueError(f"cutouts is {str(cutouts)!r}; it needs source = \"library\" (their backgrounds)")
         try:
             self.photos = load_photos(split) if source == "skimage" else None
             self.library = open_scene_library() if source == "library" else None
-        except SceneError as exc:
+            if cutouts is not None:
+                from dadiff.runtime.evaluation.cutouts import CutoutTargets
+
+                self.library = CutoutTargets(self.library, cutouts)
+                library_images(self.library, split)  # no cut-out of this split: say so now, not mid-run
+        except (SceneError, LibraryError) as exc:
             raise ValueError(str(exc)) from None
         self.split = split
         self.max_gap = max_gap
@@ -317,7 +327,7 @@ def make_day_source(spec: dict):
     if kind == "scenes":
         return SceneSource(spec.get("split", "train"), pairs_per_scene=int(spec.get("pairs", 4)),
                            source=spec.get("source", "skimage"), companions=float(spec.get("companions", 0.0)),
-                           stretch=float(spec.get("stretch", 0.0)))
+                           stretch=float(spec.get("stretch", 0.0)), cutouts=spec.get("cutouts"))
     if kind in ("got10k", "otb", "sequences"):
         one_night = spec.get("one_night", False)
         if not isinstance(one_night, bool):

@@ -6,9 +6,11 @@ dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
+                     [--cutouts DIR]
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
+dadiff-eval cutouts --dataset D --out DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
 dadiff-eval tune --model M --dataset D [--dataset D2] [--sequences GLOB] [--grid KEY=V1,V2 ...] [--out trials.csv]
@@ -82,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,score,anatomy,box-read,generate,video,detect,pseudo-label,data,tune}")
+                                metavar="{run,score,anatomy,box-read,generate,video,detect,pseudo-label,cutouts,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -152,9 +154,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="night look: classic (the seed-2026 benchmark's) or real (as measured on real night drone video); "
         "default: classic for skimage, real for library",
     )
+    gen.add_argument("--cutouts", type=Path, help="with --source library: targets from this cut-out folder "
+                     "(dadiff-eval cutouts) instead of the library's")
     _add_video_parser(sub)
     _add_detect_parser(sub)
     _add_pseudo_label_parser(sub)
+    _add_cutouts_parser(sub)
     _add_data_parser(sub)
     _add_tune_parser(sub)
     return parser
@@ -196,6 +201,19 @@ def _class_ids(text: str) -> set[int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected class ids such as 1 or 1,3, got '{text}'") from None
     return ids
+
+
+def _add_cutouts_parser(sub: argparse._SubParsersAction) -> None:
+    cut = sub.add_parser("cutouts", help="target cut-outs (BGRA PNGs) from a labelled dataset's frames by GrabCut, "
+                         "for the library scenes' targets")
+    cut.add_argument("--dataset", required=True, type=Path,
+                     help="labelled sequences (what pseudo-label or video wrote)")
+    cut.add_argument("--sequences", nargs="+", default=["*_day"], metavar="GLOB",
+                     help="sequences to cut from (default: *_day)")
+    cut.add_argument("--out", required=True, type=Path, help="new (or empty, or an earlier cut-out) folder")
+    cut.add_argument("--licence", required=True, help="the footage's licence, recorded in the index")
+    cut.add_argument("--every", type=positive_int, default=8, help="every N-th frame of a sequence (default 8)")
+    cut.add_argument("--min-height", type=float, default=48.0, help="smallest box height in px (default 48)")
 
 
 def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
@@ -428,6 +446,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         workers=args.workers,
         source=args.source,
         night=args.night,
+        library=_cutout_library(args),
     )
     took = time.perf_counter() - start
     night = json.loads((root / "benchmark.json").read_text())["night"]
@@ -435,6 +454,34 @@ def cmd_generate(args: argparse.Namespace) -> int:
         f"wrote {args.sequences} day + {args.sequences} night sequences of {args.frames} frames to {root} "
         f"({args.source} pictures, {night} night) in {took:.1f} s"
     )
+    return 0
+
+
+def _cutout_library(args: argparse.Namespace):
+    """`generate --cutouts`: the library with that folder's cut-outs as its targets (None without it)."""
+    if args.cutouts is None:
+        return None
+    if args.source != "library":
+        raise SceneError("--cutouts needs --source library (the cut-outs are pasted over its backgrounds)")
+    from .cutouts import CutoutTargets
+    from .library_scenes import open_scene_library
+
+    return CutoutTargets(open_scene_library(), args.cutouts)
+
+
+def cmd_cutouts(args: argparse.Namespace) -> int:
+    from .cutouts import CutSettings, write_cutouts
+
+    if not args.min_height > 0:
+        raise SceneError(f"--min-height {args.min_height} must be above 0 (px)")
+    start = time.perf_counter()
+    dataset = load_dataset(args.dataset).select(args.sequences)
+    index = write_cutouts(dataset, args.out, args.licence, CutSettings(args.every, args.min_height))
+    splits = Counter(item["split"] for item in index["cutouts"])
+    rejected = ", ".join(f"{n} {why}" for why, n in index["rejected"].items()) or "none"
+    print(f"wrote {len(index['cutouts'])} cut-outs ({splits['train']} train, {splits['test']} test) from "
+          f"{len(dataset.sequences)} sequences to {args.out} in {time.perf_counter() - start:.1f} s; "
+          f"rejected: {rejected}")
     return 0
 
 
@@ -599,12 +646,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "box-read": cmd_box_read,
                 "generate": cmd_generate,
-                "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "data": cmd_data,
+                "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "cutouts": cmd_cutouts,
+                "data": cmd_data,
                 "tune": cmd_tune}
     try:
         with quiet_opencv():
             return commands[args.command](args)
-    except (DatasetError, EvalError, SceneError, ModelError, InputError) as exc:
+    except (DatasetError, EvalError, SceneError, ModelError, InputError, LibraryError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
