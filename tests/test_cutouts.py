@@ -9,11 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
+from dadiff.runtime.evaluation import library_scenes
 from dadiff.runtime.evaluation.cli import main
 from dadiff.runtime.evaluation.cutouts import CutoutTargets, CutSettings, cut_out, cutout_images, write_cutouts
 from dadiff.runtime.evaluation.datasets import load_dataset
-from dadiff.runtime.evaluation.library import LibraryError, split_of
-from dadiff.runtime.evaluation.scenes import write_boxes, write_frame
+from dadiff.runtime.evaluation.library import LibraryError, LibraryImage, split_of
+from dadiff.runtime.evaluation.scenes import write_benchmark, write_boxes, write_frame
 
 
 def _background(h: int, w: int, seed: int) -> np.ndarray:
@@ -96,6 +97,9 @@ def test_cutouts_are_written_indexed_and_read_back_as_library_targets(tmp_path):
     assert sum(len(v) for v in by_split.values()) == 9
     again = write_cutouts(dataset, tmp_path / "cuts", "public domain", CutSettings(every=4), log=print)
     assert again["cutouts"] == index["cutouts"]  # deterministic, and an earlier cut-out folder is rewritten
+    fewer = write_cutouts(dataset, tmp_path / "cuts", "public domain", CutSettings(every=8), log=print)
+    assert len(fewer["cutouts"]) == 6  # frames 0 and 8: the earlier run's other cut-outs are gone
+    assert sorted(p.name for p in (tmp_path / "cuts").glob("*.png")) == sorted(i["file"] for i in fewer["cutouts"])
 
 
 def test_cutout_folders_that_cannot_be_used_are_one_clear_error(tmp_path):
@@ -134,6 +138,39 @@ def test_cutout_targets_replace_the_library_targets_and_keep_its_backgrounds(tmp
     assert library.images("background", split) == [f"background/{split}"]
     assert all(i.package == "cutouts:cuts" for i in library.images("target", split))
     assert library.licences() == {"photos": "CC0"}
+
+
+class _PhotoLibrary:
+    """Two texture photos per split as the library's backgrounds (real files, as the cache holds them)."""
+
+    def __init__(self, folder: Path) -> None:
+        folder.mkdir()
+        self.backgrounds = {}
+        for split in ("train", "test"):
+            images = []
+            for k in range(2):
+                path = folder / f"{split}{k}.jpg"
+                cv2.imwrite(str(path), _background(480, 640, 100 + k))
+                images.append(LibraryImage(path, "photos", path.name, "background", split, "CC0", 640, 480))
+            self.backgrounds[split] = images
+
+    def images(self, role: str, split: str) -> list[LibraryImage]:
+        return list(self.backgrounds[split]) if role == "background" else []
+
+
+def test_a_benchmark_over_cutouts_shows_them_and_says_so(tmp_path, monkeypatch):
+    monkeypatch.setattr(library_scenes, "_LIBRARY_CACHE", {})  # what this test's scenes load, nothing else
+    write_cutouts(load_dataset(_dataset(tmp_path / "film", sequences=7, frames=1)), tmp_path / "cuts", "x",
+                  CutSettings(every=1))
+    splits = {i["split"] for i in json.loads((tmp_path / "cuts" / "index.json").read_text())["cutouts"]}
+    assert splits == {"train", "test"}  # seven sequences: the stable hash puts vid007 in the test split
+    library = CutoutTargets(_PhotoLibrary(tmp_path / "photos"), tmp_path / "cuts")
+    root = write_benchmark(tmp_path / "bench", sequences=2, frames=2, seed=3, size=(320, 240), workers=1,
+                           source="library", library=library)
+    info = json.loads((root / "benchmark.json").read_text())
+    assert info["cutouts"] == str((tmp_path / "cuts").resolve()) and info["split"] == "test"
+    loaded = {key[3] for key in library_scenes._LIBRARY_CACHE if key[0] == "target"}
+    assert loaded and loaded <= {i.source for i in cutout_images(tmp_path / "cuts", "test")}
 
 
 def _one_error_line(capsys) -> str:

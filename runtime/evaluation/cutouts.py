@@ -96,6 +96,7 @@ def write_cutouts(
     if out.exists() and any(out.iterdir()) and not (out / "index.json").is_file():
         raise LibraryError(f"{out} is not empty and holds no cut-out index; give a new or empty folder")
     out.mkdir(parents=True, exist_ok=True)
+    _remove_listed(out)  # an earlier run's cut-outs: this run's index is the folder's whole content
     records, rejected = [], Counter()
     for seq in dataset.sequences:
         split = split_of(f"cutouts:{dataset.name}", seq.name)
@@ -120,6 +121,18 @@ def write_cutouts(
              "rejected": dict(sorted(rejected.items())), "cutouts": records}
     (out / "index.json").write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
     return index
+
+
+def _remove_listed(folder: Path) -> None:
+    """Delete the PNGs an earlier index in `folder` lists (and that index), nothing else."""
+    try:
+        listed = [item["file"] for item in json.loads((folder / "index.json").read_text())["cutouts"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    for name in listed:
+        if isinstance(name, str) and "/" not in name and name.endswith(".png"):
+            (folder / name).unlink(missing_ok=True)
+    (folder / "index.json").unlink(missing_ok=True)
 
 
 def cutout_images(folder: str | Path, split: str) -> list[LibraryImage]:

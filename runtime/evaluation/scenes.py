@@ -243,5 +243,7 @@ def write_benchmark(
         "sequences": sequences,
         "frames": frames,
     }
+    if getattr(library, "folder", None) is not None:  # a CutoutTargets: whose targets the scenes show
+        info["cutouts"] = str(Path(library.folder).resolve())
     (root / "benchmark.json").write_text(json.dumps({**info, "size": list(size)}, indent=1) + "\n")
     return root
