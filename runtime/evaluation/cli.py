@@ -623,20 +623,16 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 
 def cmd_data(args: argparse.Namespace) -> int:
-    """`data fetch` and `data list`; library errors exit 2 like other bad input."""
+    """`data fetch` and `data list`; library errors exit 2 like other bad input (in `main`)."""
     cache = args.cache or library_root()
-    try:
-        if args.action == "fetch":
-            library = fetch(args.packages, cache, args.deb)
-        elif args.action == "pack":
-            return _pack(cache, args)
-        else:
-            library = open_library(cache)
-            if library is None:
-                raise LibraryError(f"no library in {cache}: run `{PROG} data fetch` first")
-    except LibraryError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+    if args.action == "fetch":
+        library = fetch(args.packages, cache, args.deb)
+    elif args.action == "pack":
+        return _pack(cache, args)
+    else:
+        library = open_library(cache)
+        if library is None:
+            raise LibraryError(f"no library in {cache}: run `{PROG} data fetch` first")
     print(format_library(library))
     return 0
 

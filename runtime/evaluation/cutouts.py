@@ -9,7 +9,7 @@ whole target: its largest connected part fills `FILL` of the box (less: a loose 
 more: the box's background taken in) and spans most of its height and width (less: a part cut off, by an
 occluder or a shadow). Kept cuts are written as BGRA PNGs cropped to
 the part's bounds, with a soft one-pixel edge, and listed in `index.json`; the scene generator and training
-use them as targets (`cutouts_images`). The split is by sequence (a stable hash, as the library's), so one
+use them as targets (`cutout_images`). The split is by sequence (a stable hash, as the library's), so one
 person's frames never sit in both splits.
 """
 
@@ -165,9 +165,14 @@ class CutoutTargets:
 
     def __init__(self, library, folder: str | Path) -> None:
         self.library, self.folder = library, Path(folder).expanduser()
+        self._targets: dict[str, list[LibraryImage]] = {}  # per split: the index is read once, not per scene
 
     def images(self, role: str, split: str) -> list[LibraryImage]:
-        return cutout_images(self.folder, split) if role == "target" else self.library.images(role, split)
+        if role != "target":
+            return self.library.images(role, split)
+        if split not in self._targets:
+            self._targets[split] = cutout_images(self.folder, split)
+        return list(self._targets[split])
 
     def licences(self) -> dict[str, str]:
         return self.library.licences()
