@@ -42,6 +42,22 @@ def ban_iou_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor, r
     return (1.0 - iou).mean()
 
 
+def ban_side_log_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor, region: str = "ellipse",
+                      floor: float = 4.0) -> torch.Tensor:
+    """Mean |log((p + f) / (t + f))| over the four distances at the regression points, f in crop px.
+
+    The IoU loss weighs an error on a side by the whole box: from a point a quarter of a thin target off its
+    centre, reading the near side 5 px long costs it what the width grows by, a few percent. Measured per
+    side it costs that side's own ratio, so the near side is read as carefully as the far one. The floor
+    keeps a point at the target's very edge (t -> 0) from dominating."""
+    points = regression_points(target, label, region)
+    if not points.any():
+        return loc.sum() * 0
+    p = loc.permute(0, 2, 3, 1)[points]
+    t = target.permute(0, 2, 3, 1)[points].clamp_min(0.0)
+    return ((p + floor).log() - (t + floor).log()).abs().mean()
+
+
 def align_loss(denoiser: Denoiser, alpha_bar: torch.Tensor, x0: torch.Tensor, cond: torch.Tensor,
                generator: torch.Generator | None = None) -> torch.Tensor:
     """E ||eps - eps_theta([X_t || N_f], t)||^2 with t uniform over the schedule and X_t noised from X_0."""

@@ -31,6 +31,7 @@ from .losses import (
     align_loss,
     ban_cls_loss,
     ban_iou_loss,
+    ban_side_log_loss,
     chain_align_loss,
     distill_cls_loss,
     distill_loc_loss,
@@ -80,6 +81,7 @@ class TrainConfig:
     #                                       "restore": aligned night features vs the paired day neck features
     search_scale: float = CropConfig.search_scale  # search crops rescaled by exp(U(-s, s)) around the target
     loc_region: str = "ellipse"           # box regression at BAN's positive points, or "box": every point inside
+    lambda_side: float = 0.0              # per-side log-distance loss beside the IoU loss, within the box loss
     grad_clip: float = 10.0
     checkpoint_every: int = 100
     keep_checkpoints: bool = False        # also keep each periodic checkpoint as OUT/step-NNNNNN.pt
@@ -246,7 +248,8 @@ class Trainer:
         if self.adapter is not None:
             self.opt.add_param_group({"params": list(self.adapter.parameters()), "lr_mult": 1.0})
         self.step = 0
-        forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device, cfg.align_target, cfg.loc_region)
+        forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device, cfg.align_target, cfg.loc_region,
+                               cfg.lambda_side)
         self.model = DistributedDataParallel(forward, find_unused_parameters=True) if world > 1 else forward
         self.dmodel = (DistributedDataParallel(self.disc) if world > 1 else self.disc) if self.disc else None
 
@@ -384,12 +387,20 @@ class TrainForward(nn.Module):
     """The tracker's side of one step in a single forward, so that DistributedDataParallel can wrap it."""
 
     def __init__(self, net: DaDiffNet, seed: int, device: torch.device | str = "cpu",
-                 align_target: str = "eps", loc_region: str = "ellipse") -> None:
+                 align_target: str = "eps", loc_region: str = "ellipse", lambda_side: float = 0.0) -> None:
         super().__init__()
         self.net = net
         self.gen = torch.Generator(device=device).manual_seed(seed)
         self.align_target = align_target
         self.loc_region = loc_region
+        self.lambda_side = lambda_side
+
+    def box_loss(self, loc: torch.Tensor, loc_target: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+        """The IoU loss, plus each side's own log error when `lambda_side` asks for it."""
+        loss = ban_iou_loss(loc, loc_target, label, self.loc_region)
+        if self.lambda_side:
+            loss = loss + self.lambda_side * ban_side_log_loss(loc, loc_target, label, self.loc_region)
+        return loss
 
     def forward(self, z: torch.Tensor, x: torch.Tensor, label: torch.Tensor, loc_target: torch.Tensor, paired: bool,
                 z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
@@ -397,8 +408,7 @@ class TrainForward(nn.Module):
         zb, xb = net.template_branch(z), net.search_branch(x)
         cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
         zero = cls.sum() * 0
-        region = self.loc_region
-        out = {"cls": ban_cls_loss(cls, label), "loc": ban_iou_loss(loc, loc_target, label, region), "align": zero,
+        out = {"cls": ban_cls_loss(cls, label), "loc": self.box_loss(loc, loc_target, label), "align": zero,
                "night_cls": zero, "night_loc": zero, "night_states": [],
                "day_states": [s for b in (zb, xb) for level in b.states for s in level],
                "cls_map": cls, "loc_map": loc, "x_neck": xb.neck[0],  # the maps and neck: the teacher's losses
@@ -410,7 +420,7 @@ class TrainForward(nn.Module):
         if paired:  # rendered from the day frames: the day boxes hold
             cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))
             out["night_cls"] = ban_cls_loss(cls_n, label)
-            out["night_loc"] = ban_iou_loss(loc_n, loc_target, label, region)
+            out["night_loc"] = self.box_loss(loc_n, loc_target, label)
             out["night_cls_map"], out["night_loc_map"] = cls_n, loc_n
         if net.cfg.use_dadiff and self.align_target == "chain" and paired:
             # L_align on the inference chain itself: the sampler's output from the night features should be

@@ -52,6 +52,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
      '"restore": aligned night features vs the paired day neck features'),
     ("search_scale", "0.18", "search crops rescaled by exp(U(-s, s)) around the target (0-1)"),
     ("loc_region", '"ellipse"', 'box regressed at BAN\'s positive "ellipse" or at every point in the "box"'),
+    ("lambda_side", "0.0", "each box side's own log error (floor 4 crop px) beside the IoU loss, within the box loss"),
     ("grad_clip", "10.0", "gradient norm clip (> 0)"),
     ("train_only", "[]", 'parameter-name prefixes to train, the rest frozen, e.g. ["head.box0.loc."]'),
     ("checkpoint_every", "100", "steps between last.pt saves (>= 1)"),

@@ -499,6 +499,28 @@ def test_loc_region_box_regresses_every_point_inside_the_target_box(tmp_path, ca
     assert "'loc_region' is 'everywhere'; expected one of ellipse, box" in capsys.readouterr().err
 
 
+def test_side_log_loss_weighs_a_sides_error_by_that_side(tmp_path, capsys):
+    """The IoU loss charges 4 px too many on a thin box's near side (8 px) as on its far side (24 px); the
+    per-side loss charges the near side more, and nothing for an exact box."""
+    import torch
+
+    from dadiff.export.losses import ban_iou_loss, ban_side_log_loss
+    from dadiff.export.train import main
+
+    label = torch.ones(1, 1, 1, dtype=torch.long)
+    target = torch.tensor([8.0, 40.0, 24.0, 40.0]).view(1, 4, 1, 1)
+    near, far = target.clone(), target.clone()
+    near[0, 0] += 4.0
+    far[0, 2] += 4.0
+    assert ban_iou_loss(near, target, label).item() == pytest.approx(ban_iou_loss(far, target, label).item())
+    assert ban_side_log_loss(target, target, label).item() == pytest.approx(0.0, abs=1e-7)
+    assert ban_side_log_loss(near, target, label).item() > 2 * ban_side_log_loss(far, target, label).item()
+    bad = tmp_path / "side.toml"
+    bad.write_text("[train]\nlambda_side = -1.0\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "'lambda_side' is -1.0; expected >= 0" in capsys.readouterr().err
+
+
 def test_night_path_lamps_config_is_a_share_of_scene_lit_pairs(tmp_path, capsys):
     from dadiff.export.train import main
 
