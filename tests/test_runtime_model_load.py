@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import shutil
 from pathlib import Path
 
@@ -117,4 +118,9 @@ def test_the_shipped_default_is_a_trained_mobile_model() -> None:
     assert (folder / "MODEL_CARD.md").is_file()
     tracker = Tracker.load(threads=1)
     assert tracker.backend.meta["family"] == "dadiff-mobile"
-    assert "runs/mobile-dadiff-boxhead2/step-000350.pt" in (folder / "MODEL_CARD.md").read_text()  # names its run
+    card = (folder / "MODEL_CARD.md").read_text()
+    assert "runs/mobile-dadiff-cutoutsneckside/final.pt" in card  # names its run
+    # the training state the card says it was exported from is committed and is what the graphs came from
+    state = Path(__file__).resolve().parents[1] / "export" / "resume" / "mobile-dadiff-cutoutsneckside-final.pt"
+    assert f"`{state.relative_to(state.parents[2])}`" in card
+    assert hashlib.sha256(state.read_bytes()).hexdigest() == tracker.backend.meta["source_sha256"]
