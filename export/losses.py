@@ -27,13 +27,21 @@ def regression_points(target: torch.Tensor, label: torch.Tensor, region: str = "
     return points
 
 
-def ban_iou_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor, region: str = "ellipse") -> torch.Tensor:
-    """Linear IoU loss 1 - IoU between predicted and target (l, t, r, b) boxes at the regression points."""
+def distances_at_regression_points(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor,
+                                   region: str) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Predicted and target (l, t, r, b) as (N, 4) rows at the regression points; None where there are none."""
     points = regression_points(target, label, region)
     if not points.any():
+        return None
+    return loc.permute(0, 2, 3, 1)[points], target.permute(0, 2, 3, 1)[points]
+
+
+def ban_iou_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tensor, region: str = "ellipse") -> torch.Tensor:
+    """Linear IoU loss 1 - IoU between predicted and target (l, t, r, b) boxes at the regression points."""
+    pairs = distances_at_regression_points(loc, target, label, region)
+    if pairs is None:
         return loc.sum() * 0
-    p = loc.permute(0, 2, 3, 1)[points]
-    t = target.permute(0, 2, 3, 1)[points]
+    p, t = pairs
     pl, pt, pr, pb = p.unbind(1)
     tl, tt, tr, tb = t.unbind(1)
     inter = (torch.minimum(pl, tl) + torch.minimum(pr, tr)) * (torch.minimum(pt, tt) + torch.minimum(pb, tb))
@@ -47,15 +55,14 @@ def ban_side_log_loss(loc: torch.Tensor, target: torch.Tensor, label: torch.Tens
     """Mean |log((p + f) / (t + f))| over the four distances at the regression points, f in crop px.
 
     The IoU loss weighs an error on a side by the whole box: from a point a quarter of a thin target off its
-    centre, reading the near side 5 px long costs it what the width grows by, a few percent. Measured per
+    centre, reading the near side 4 px long costs it what the width grows by, a few percent. Measured per
     side it costs that side's own ratio, so the near side is read as carefully as the far one. The floor
     keeps a point at the target's very edge (t -> 0) from dominating."""
-    points = regression_points(target, label, region)
-    if not points.any():
+    pairs = distances_at_regression_points(loc, target, label, region)
+    if pairs is None:
         return loc.sum() * 0
-    p = loc.permute(0, 2, 3, 1)[points]
-    t = target.permute(0, 2, 3, 1)[points].clamp_min(0.0)
-    return ((p + floor).log() - (t + floor).log()).abs().mean()
+    p, t = pairs
+    return ((p + floor).log() - (t.clamp_min(0.0) + floor).log()).abs().mean()
 
 
 def align_loss(denoiser: Denoiser, alpha_bar: torch.Tensor, x0: torch.Tensor, cond: torch.Tensor,
