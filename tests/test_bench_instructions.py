@@ -94,9 +94,10 @@ def test_without_valgrind_is_one_line(model_dir: Path, monkeypatch, capsys) -> N
 @pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is not installed")
 def test_a_real_count_under_valgrind(model_dir: Path, tmp_path: Path) -> None:
     """The whole path once, on the tiny test model: valgrind runs the program (it would stop with SIGILL at an
-    AVX-512 instruction) and the longer run counts more. Four updates of the tiny model (about 4e7
-    instructions) stand well clear of what the same program's totals vary by (under 1e7)."""
+    AVX-512 instruction) and the longer run counts more. The same program's totals usually vary by under 1e7,
+    but on a 2-core Xeon (2026-12-05) two of four runs had the 1-update run count 1.1e8 more than the 5-update
+    one; forty-eight updates of the tiny model (6.4e6 each, 3e8 in all) stand clear of that."""
     video = write_night_video(tmp_path, 0, 6)
     clip = instructions.write_clip(video.path, tmp_path / "clip.npy")
-    count = instructions.count_updates("model", str(model_dir), clip, video.first_box, "corr-test", (1, 5))
+    count = instructions.count_updates("model", str(model_dir), clip, video.first_box, "corr-test", (1, 49))
     assert count.instructions > 0 and count.runs[1] > count.runs[0]
