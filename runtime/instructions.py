@@ -10,9 +10,9 @@ difference is only as good as the rest is repeatable: with the video decoded ins
 of the same program differed by up to 1.5e8 instructions, so the clip is decoded once, outside valgrind, and
 loaded as an array, and Python's hash seed is fixed; the totals then differ by under 1e7 (onnxruntime's set-up),
 though runs with 1.1e8 more in one of the two were seen (a 2-core Xeon, 2026-12-05; cause not found), against
-5e7 or more per update of a real tracker (TrackerNano), times 32 updates: up to 7 % on the per-update count. Instructions are not seconds
-(kernels differ in instructions per cycle), so the ratio of two trackers' counts estimates the ratio of their
-frame rates on such a CPU; it is not a timing.
+5e7 or more per update of a real tracker (TrackerNano), times 32 updates: up to 7 % on the per-update count.
+Instructions are not seconds (kernels differ in instructions per cycle), so the ratio of two trackers' counts
+estimates the ratio of their frame rates on such a CPU; it is not a timing.
 """
 
 from __future__ import annotations
