@@ -43,6 +43,7 @@ from .train_check import check_train_values
 from .train_cli import build_parser, finish_line
 from .train_data import CropConfig, PairStream, make_day_source
 from .train_toml import config_chain, format_toml
+from .weight_average import WeightAverage
 
 DAY, NIGHT = 0.0, 1.0
 DADIFF_BLOCK = ("diffusion.", "align_track.", "align_scale")  # parameter names of the DaDiff block
@@ -95,6 +96,7 @@ class TrainConfig:
     night_pairs: str = "frame"            # "scene": one night camera and fixed lights over a scene's pair
     night_path_lamps: float = 0.0         # share of scene-lit night pairs given lamp heads beside the target
     negative_pairs: float = 0.0           # share of pairs whose search crop holds another object (release: 0.2)
+    ema_decay: float = 0.0                # > 0: also keep a moving average of the weights (OUT/final-ema.pt)
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrainConfig:
@@ -127,6 +129,8 @@ class TrainConfig:
         if any(source.get("one_night") for source in cfg.day) and cfg.night_pairs != "scene":
             raise ValueError(f"{path}: a day source's one_night needs night_pairs = \"scene\" (a night over each "
                              f"pair); set it or drop one_night")
+        if cfg.ema_decay >= 1:
+            raise ValueError(f"{path}: ema_decay must be below 1 (0 turns the average off), got {cfg.ema_decay}")
         if cfg.batch_size < 2:  # BatchNorm layers (head, channel weights) need 2+ samples per process
             raise ValueError(f"{path}: batch_size must be at least 2 per process, got {cfg.batch_size}")
         return cfg
@@ -247,6 +251,7 @@ class Trainer:
         self.teacher, self.adapter = self.build_teacher()
         if self.adapter is not None:
             self.opt.add_param_group({"params": list(self.adapter.parameters()), "lr_mult": 1.0})
+        self.ema = WeightAverage(self.net, cfg.ema_decay) if cfg.ema_decay else None
         self.step = 0
         forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device, cfg.align_target, cfg.loc_region,
                                cfg.lambda_side)
@@ -287,7 +292,15 @@ class Trainer:
             extra["disc_optimizer"] = self.disc_opt.state_dict()
         if self.adapter is not None:
             extra["teacher_adapter"] = self.adapter.state_dict()
+        if self.ema is not None:
+            extra["ema_state_dict"] = self.ema.state
         save_checkpoint(path or self.last_path, self.net, **extra)
+
+    def save_average(self, path: Path) -> None:
+        """The weight average as an ordinary checkpoint, for dadiff-export (no optimiser: not to resume from)."""
+        if self.rank == 0 and self.ema is not None:
+            save_checkpoint(path, self.ema.averaged(self.net), step=self.step, train_config=self.cfg.__dict__,
+                            ema_decay=self.cfg.ema_decay)
 
     def resume(self) -> bool:
         if not self.last_path.exists():
@@ -300,6 +313,8 @@ class Trainer:
         if self.disc is not None and "discriminator" in obj:
             self.disc.load_state_dict(obj["discriminator"])
             self.disc_opt.load_state_dict(obj["disc_optimizer"])
+        if self.ema is not None and "ema_state_dict" in obj:  # else the average starts at the resumed weights
+            self.ema.load(obj["ema_state_dict"])
         self.step = int(obj["step"])
         return True
 
@@ -360,6 +375,8 @@ class Trainer:
         total.backward()  # under torchrun, DDP averages the gradients of every replica here
         torch.nn.utils.clip_grad_norm_([p for g in self.opt.param_groups for p in g["params"]], cfg.grad_clip)
         self.opt.step()
+        if self.ema is not None:
+            self.ema.update(self.net)
         if self.use_adv:
             logs["disc"] = self.discriminator_step(day_states, night_states, ts)
         logs["total"] = total.item()
@@ -520,11 +537,13 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
                 trainer.save()
                 if cfg.keep_checkpoints:  # states to choose from by held-out tracking, not by the loss
                     trainer.save(trainer.out / f"step-{trainer.step:06d}.pt")
+                    trainer.save_average(trainer.out / f"step-{trainer.step:06d}-ema.pt")
     finally:
         trainer.save()
         if rank == 0:
             if trainer.step >= cfg.steps:
                 trainer.save(trainer.out / "final.pt")
+                trainer.save_average(trainer.out / "final-ema.pt")
             log_file.close()
             if bar is not None:
                 bar.close()
@@ -565,7 +584,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"dadiff-train: {trainer.world} replicas, max parameter difference {divergence:.3g}")
         dist.destroy_process_group()
     if trainer.rank == 0:
-        print(f"dadiff-train: {finish_line(trainer.step, cfg.steps, trainer.out)}")
+        print(f"dadiff-train: {finish_line(trainer.step, cfg.steps, trainer.out, trainer.ema is not None)}")
     return 0
 
 

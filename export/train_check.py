@@ -25,7 +25,7 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "grad_clip": (0, False), "search_scale": (0, True),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
     "lambda_night_distill": (0, True), "night_path_lamps": (0, True), "negative_pairs": (0, True),
-    "lambda_side": (0, True),
+    "lambda_side": (0, True), "ema_decay": (0, True),
 }
 MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0, "negative_pairs": 1.0, "search_scale": 1.0}  # inclusive
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,

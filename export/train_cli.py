@@ -57,6 +57,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("train_only", "[]", 'parameter-name prefixes to train, the rest frozen, e.g. ["head.box0.loc."]'),
     ("checkpoint_every", "100", "steps between last.pt saves (>= 1)"),
     ("keep_checkpoints", "false", "also keep each of those saves as step-NNNNNN.pt (to choose one by tracking)"),
+    ("ema_decay", "0.0", "> 0 (below 1): also keep a moving average of the weights, saved as final-ema.pt"),
     ("seed", "0", "random seed"),
     ("teacher", "(none)", "NanoTrack v3 ONNX folder to distil from (stride-16 families)"),
     ("lambda_distill", "1.0", "teacher response distillation weight"),
@@ -110,10 +111,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def finish_line(step: int, steps: int, out: Path) -> str:
-    """What the run leaves: final.pt to export when done, last.pt to resume from otherwise."""
+def finish_line(step: int, steps: int, out: Path, averaged: bool = False) -> str:
+    """What the run leaves: final.pt (and its weight average) to export when done, last.pt to resume from."""
     if step >= steps:
-        return f"step {step}/{steps}; done: export {out / 'final.pt'} with dadiff-export"
+        also = f" (the weight average: {out / 'final-ema.pt'})" if averaged else ""
+        return f"step {step}/{steps}; done: export {out / 'final.pt'}{also} with dadiff-export"
     return f"stopped at step {step}/{steps}; resume with the same command (state in {out / 'last.pt'})"
 
 

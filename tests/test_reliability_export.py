@@ -159,3 +159,5 @@ def test_every_train_config_key_is_documented_in_help() -> None:
 def test_the_finished_run_names_final_pt(tmp_path) -> None:
     assert "export " + str(tmp_path / "final.pt") in finish_line(5, 5, tmp_path)  # was: named last.pt
     assert "resume" in finish_line(2, 5, tmp_path) and "final.pt" not in finish_line(2, 5, tmp_path)
+    assert str(tmp_path / "final-ema.pt") in finish_line(5, 5, tmp_path, averaged=True)
+    assert "final-ema.pt" not in finish_line(5, 5, tmp_path)

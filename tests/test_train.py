@@ -119,6 +119,66 @@ def test_keep_checkpoints_leaves_one_state_per_checkpoint_step(tmp_path, image_f
     assert not list(Path(plain.out).glob("step-*.pt"))
 
 
+def test_weight_average_follows_the_weights_by_its_decay_and_copies_step_counters():
+    from dadiff.export.weight_average import WeightAverage
+
+    net = torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.BatchNorm1d(2))
+    start = {k: v.clone() for k, v in net.state_dict().items()}
+    average = WeightAverage(net, 0.75)
+    with torch.no_grad():
+        net[0].weight.add_(4.0)
+        net[1].num_batches_tracked.fill_(3)
+    average.update(net)
+    assert torch.allclose(average.state["0.weight"], start["0.weight"] + 1.0)  # 0.75 * w + 0.25 * (w + 4)
+    assert torch.equal(average.state["0.bias"], start["0.bias"])
+    assert int(average.state["1.num_batches_tracked"]) == 3
+    twin = average.averaged(net)
+    assert torch.equal(twin[0].weight, average.state["0.weight"]) and twin is not net
+    assert not torch.equal(net[0].weight, twin[0].weight)  # the network keeps its own weights
+    with pytest.raises(ValueError, match="does not match"):
+        average.load({"0.weight": start["0.weight"]})
+    with pytest.raises(ValueError, match="between 0 and 1"):
+        WeightAverage(net, 1.0)
+
+
+def test_ema_run_saves_the_average_beside_the_last_state_and_resumes_it(tmp_path, image_folder):
+    from dadiff.export.checkpoint import load_checkpoint, read_checkpoint_file
+
+    cfg = config(tmp_path, image_folder, steps=4, checkpoint_every=2, ema_decay=0.5, keep_checkpoints=True,
+                 train_only=["head."])
+    first = run(cfg, max_steps=2, progress=False)
+    saved = read_checkpoint_file(Path(cfg.out) / "last.pt")["ema_state_dict"]
+    again = Trainer(cfg)
+    assert again.resume()
+    assert all(torch.equal(again.ema.state[k], saved[k]) for k in saved)
+    assert all(torch.equal(first.ema.state[k], saved[k]) for k in saved)
+    done = run(cfg, progress=False)
+    out = Path(cfg.out)
+    assert sorted(p.name for p in out.glob("*ema.pt")) == ["final-ema.pt", "step-000002-ema.pt", "step-000004-ema.pt"]
+    last, average = load_checkpoint(out / "final.pt").model.state_dict(), \
+        load_checkpoint(out / "final-ema.pt").model.state_dict()
+    moved = [k for k in last if k.startswith("head.") and last[k].is_floating_point() and
+             not torch.equal(last[k], average[k])]
+    assert moved  # the average lags the trained head
+    assert all(torch.equal(last[k], average[k]) for k in last if k.startswith("backbone."))  # frozen: equal
+    assert all(torch.equal(done.ema.state[k], average[k]) for k in average)
+    plain = config(tmp_path / "plain", image_folder, steps=2, checkpoint_every=2)
+    run(plain, progress=False)
+    assert not (Path(plain.out) / "final-ema.pt").exists()
+    assert "ema_state_dict" not in read_checkpoint_file(Path(plain.out) / "last.pt")
+
+
+@pytest.mark.parametrize("value, message", [("1.0", "ema_decay must be below 1"),
+                                            ("-0.5", "'ema_decay' is -0.5; expected >= 0")])
+def test_ema_decay_out_of_range_is_one_line(tmp_path, capsys, value, message):
+    from dadiff.export.train import main
+
+    bad = tmp_path / "ema.toml"
+    bad.write_text(f"[train]\nema_decay = {value}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert message in capsys.readouterr().err
+
+
 def test_train_only_moves_the_named_parameters_alone(tmp_path, image_folder):
     """train_only: the box branch trains; the backbone, its BN statistics and the classification branch stay."""
     cfg = config(tmp_path, image_folder, stage="baseline", train_only=["head.box0.loc."], steps=2,
