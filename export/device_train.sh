@@ -60,4 +60,5 @@ python3 -m dadiff.export.train --config /tmp/device-config.toml --device auto --
     | tr '\r' '\n' | grep -v '^baseline\|^dadiff' | tail -20
 cp /tmp/device-run/last.pt /tmp/device-run/log.csv "$out"/
 [ -f /tmp/device-run/final.pt ] && cp /tmp/device-run/final.pt "$out"/
+[ -f /tmp/device-run/final-ema.pt ] && cp /tmp/device-run/final-ema.pt "$out"/  # the weight average (ema_decay)
 ls -la "$out"
