@@ -297,10 +297,14 @@ class Trainer:
         save_checkpoint(path or self.last_path, self.net, **extra)
 
     def save_average(self, path: Path) -> None:
-        """The weight average as an ordinary checkpoint, for dadiff-export (no optimiser: not to resume from)."""
+        """The weight average as an ordinary checkpoint, for dadiff-export and as a later run's `init` (with the
+        teacher adapter, which a run from it keeps; no optimiser: not a state to resume)."""
         if self.rank == 0 and self.ema is not None:
-            save_checkpoint(path, self.ema.averaged(self.net), step=self.step, train_config=self.cfg.__dict__,
-                            ema_decay=self.cfg.ema_decay)
+            extra: dict[str, Any] = {"step": self.step, "train_config": self.cfg.__dict__,
+                                     "ema_decay": self.cfg.ema_decay}
+            if self.adapter is not None:
+                extra["teacher_adapter"] = self.adapter.state_dict()
+            save_checkpoint(path, self.ema.averaged(self.net), **extra)
 
     def resume(self) -> bool:
         if not self.last_path.exists():

@@ -244,7 +244,7 @@ TEACHER = Path(__file__).resolve().parents[2] / "shared" / "weights" / "nanotrac
 @pytest.mark.skipif(not TEACHER.is_dir(), reason="NanoTrack v3 teacher weights are not at ../shared/weights")
 def test_teacher_distillation_trains_the_mobile_family_and_stays_out_of_the_model(tmp_path, image_folder):
     cfg = config(tmp_path, image_folder, stage="baseline", family="dadiff-mobile", init="imagenet", steps=3,
-                 teacher=str(TEACHER), freeze_backbone_blocks=2)
+                 teacher=str(TEACHER), freeze_backbone_blocks=2, ema_decay=0.5)
     trainer = Trainer(cfg)
     batch = next(iter(data_loader(cfg, trainer.net, 0)))
     adapter = trainer.adapter.weight.detach().clone()
@@ -258,6 +258,11 @@ def test_teacher_distillation_trains_the_mobile_family_and_stays_out_of_the_mode
 
     model_keys = set(load_checkpoint(tmp_path / "final.pt").model.state_dict())
     assert model_keys == set(trainer.net.state_dict()) and not any("adapter" in k for k in model_keys)
+    # the weight average keeps the adapter too, so a run that starts from it (`init`) continues the distillation
+    trainer.save_average(tmp_path / "final-ema.pt")
+    assert set(load_checkpoint(tmp_path / "final-ema.pt").model.state_dict()) == model_keys
+    follower = Trainer(replace(cfg, init=str(tmp_path / "final-ema.pt"), out=str(tmp_path / "next")))
+    assert torch.equal(follower.adapter.weight, trainer.adapter.weight)
 
 
 @pytest.mark.skipif(not TEACHER.is_dir(), reason="NanoTrack v3 teacher weights are not at ../shared/weights")
