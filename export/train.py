@@ -129,8 +129,6 @@ class TrainConfig:
         if any(source.get("one_night") for source in cfg.day) and cfg.night_pairs != "scene":
             raise ValueError(f"{path}: a day source's one_night needs night_pairs = \"scene\" (a night over each "
                              f"pair); set it or drop one_night")
-        if cfg.ema_decay >= 1:
-            raise ValueError(f"{path}: ema_decay must be below 1 (0 turns the average off), got {cfg.ema_decay}")
         if cfg.batch_size < 2:  # BatchNorm layers (head, channel weights) need 2+ samples per process
             raise ValueError(f"{path}: batch_size must be at least 2 per process, got {cfg.batch_size}")
         return cfg
@@ -285,13 +283,10 @@ class Trainer:
         if self.rank != 0:
             return
         self.out.mkdir(parents=True, exist_ok=True)
-        extra: dict[str, Any] = {"step": self.step, "optimizer": self.opt.state_dict(),
-                                 "train_config": self.cfg.__dict__}
+        extra = self.state_extras() | {"optimizer": self.opt.state_dict()}
         if self.disc is not None:
             extra["discriminator"] = self.disc.state_dict()
             extra["disc_optimizer"] = self.disc_opt.state_dict()
-        if self.adapter is not None:
-            extra["teacher_adapter"] = self.adapter.state_dict()
         if self.ema is not None:
             extra["ema_state_dict"] = self.ema.state
         save_checkpoint(path or self.last_path, self.net, **extra)
@@ -300,11 +295,15 @@ class Trainer:
         """The weight average as an ordinary checkpoint, for dadiff-export and as a later run's `init` (with the
         teacher adapter, which a run from it keeps; no optimiser: not a state to resume)."""
         if self.rank == 0 and self.ema is not None:
-            extra: dict[str, Any] = {"step": self.step, "train_config": self.cfg.__dict__,
-                                     "ema_decay": self.cfg.ema_decay}
-            if self.adapter is not None:
-                extra["teacher_adapter"] = self.adapter.state_dict()
-            save_checkpoint(path, self.ema.averaged(self.net), **extra)
+            save_checkpoint(path, self.ema.averaged(self.net), ema_decay=self.cfg.ema_decay, **self.state_extras())
+
+    def state_extras(self) -> dict[str, Any]:
+        """What every saved state carries beside the weights: its step, its config and the teacher adapter
+        (a run that starts from the state keeps the adapter)."""
+        extra: dict[str, Any] = {"step": self.step, "train_config": self.cfg.__dict__}
+        if self.adapter is not None:
+            extra["teacher_adapter"] = self.adapter.state_dict()
+        return extra
 
     def resume(self) -> bool:
         if not self.last_path.exists():

@@ -27,7 +27,10 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "lambda_night_distill": (0, True), "night_path_lamps": (0, True), "negative_pairs": (0, True),
     "lambda_side": (0, True), "ema_decay": (0, True),
 }
-MAXIMUM: dict[str, float] = {"night_path_lamps": 1.0, "negative_pairs": 1.0, "search_scale": 1.0}  # inclusive
+MAXIMUM: dict[str, tuple[float, bool]] = {  # (high, inclusive), as MINIMUM
+    "night_path_lamps": (1.0, True), "negative_pairs": (1.0, True), "search_scale": (1.0, True),
+    "ema_decay": (1.0, False),
+}
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain", "restore"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}
@@ -72,8 +75,10 @@ def _check_range(key: str, value: Any) -> None:
         low, inclusive = MINIMUM[key]
         if value < low or (not inclusive and value == low):
             raise ValueError(f"'{key}' is {value!r}; expected {'>=' if inclusive else '>'} {low:g}")
-    if key in MAXIMUM and value > MAXIMUM[key]:
-        raise ValueError(f"'{key}' is {value!r}; expected <= {MAXIMUM[key]:g}")
+    if key in MAXIMUM:
+        high, inclusive = MAXIMUM[key]
+        if value > high or (not inclusive and value == high):
+            raise ValueError(f"'{key}' is {value!r}; expected {'<=' if inclusive else '<'} {high:g}")
     if key in CHOICES and value not in CHOICES[key]:
         raise ValueError(f"'{key}' is {value!r}; expected one of {', '.join(CHOICES[key])}")
     for item in value if key in ITEM_CHOICES else ():

@@ -168,7 +168,7 @@ def test_ema_run_saves_the_average_beside_the_last_state_and_resumes_it(tmp_path
     assert "ema_state_dict" not in read_checkpoint_file(Path(plain.out) / "last.pt")
 
 
-@pytest.mark.parametrize("value, message", [("1.0", "ema_decay must be below 1"),
+@pytest.mark.parametrize("value, message", [("1.0", "'ema_decay' is 1.0; expected < 1"),
                                             ("-0.5", "'ema_decay' is -0.5; expected >= 0")])
 def test_ema_decay_out_of_range_is_one_line(tmp_path, capsys, value, message):
     from dadiff.export.train import main
