@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from test_runtime_plausible import FRAME, ScriptedBackend
 
 from dadiff.runtime import Tracker
-from dadiff.runtime.evaluation.box_read import summarise
+from dadiff.runtime.evaluation.box_read import read_ratios, summarise
 from dadiff.runtime.evaluation.cli import main
+from dadiff.runtime.evaluation.datasets import Dataset, Sequence
 from dadiff.runtime.evaluation.scenes import write_benchmark
 
 
@@ -30,6 +32,20 @@ def test_look_reads_the_networks_box_where_the_crop_was_cut_and_leaves_the_state
     assert looking.update(FRAME).box == plain.update(FRAME).box
 
 
+def test_box_read_finds_the_lag_of_a_network_that_stays_at_the_crop_centre(tmp_path) -> None:
+    """The scripted network always answers the crop's centre cell: moved 8 crop px it misses the true centre
+    by 8 crop px (5 frame px, 0.13 of the 40 px width), still inside the box; moved 40 crop px (25 frame px)
+    its centre is outside the box on every read."""
+    frame = tmp_path / "frame.png"
+    cv2.imwrite(str(frame), FRAME)
+    sequence = Sequence("still", (frame,) * 3, np.array([[200, 150, 40, 40]] * 3, dtype=float))
+    tracker = Tracker(ScriptedBackend([0.9], 20.0))
+    near, far = read_ratios(tracker, Dataset("one", tmp_path, "otb", (sequence,)), [8.0, 40.0])
+    scale = 127 / 80
+    assert near[:, 3] == pytest.approx(8 / scale / 40) and not near[:, 4].any()
+    assert far[:, 3] == pytest.approx(40 / scale / 40) and far[:, 4].all()
+
+
 def test_look_before_init_and_a_bad_box_are_refused() -> None:
     tracker = Tracker(ScriptedBackend([0.9], 20.0))
     with pytest.raises(RuntimeError, match="before init"):
@@ -42,8 +58,10 @@ def test_look_before_init_and_a_bad_box_are_refused() -> None:
 def test_summary_is_the_median_log_ratio_overall_and_by_thirds_of_the_true_width() -> None:
     widths = np.arange(10.0, 100.0, 1.0)  # 90 frames: thirds 10-39, 40-69, 70-99 px
     log_w = np.where(widths < 40, 0.2, np.where(widths < 70, 0.1, -0.1))
-    rows = np.stack([widths, log_w, -log_w], axis=1)
+    centre = np.where(widths < 40, 0.6, 0.1)  # 30 of 90 reads with the centre outside the true box
+    rows = np.stack([widths, log_w, -log_w, centre, (centre > 0.5).astype(float)], axis=1)
     read = summarise(8.0, rows)
+    assert read.centre == pytest.approx(0.1) and read.off == pytest.approx(1 / 3)
     assert (read.shift, read.frames, read.width, read.height) == (8.0, 90, 0.1, -0.1)
     assert [round(t[2], 3) for t in read.thirds] == [0.2, 0.1, -0.1]
     assert [round(t[3], 3) for t in read.thirds] == [-0.2, -0.1, 0.1]

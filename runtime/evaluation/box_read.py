@@ -8,7 +8,10 @@ shifts (by default every quarter of the stride) and their mean is what tracking 
 stride is the metadata's, the points' spacing; a head on a finer grid (`head_upsample`) reads its
 features' wider cells only with `--shifts` given.
 Reported per shift: the median log ratio of the box's width and height to the truth, over all frames and by
-thirds of the true width (frame pixels).
+thirds of the true width (frame pixels); and where the box's centre lands: its median offset from the true
+centre along the shift, in true widths (0: the network found the target; positive: it stayed towards the
+crop's centre, as a tracker that lags a fast target does), and the share of reads whose centre falls outside
+the true box (at a large shift: the target moved that far in one frame and the tracker lost it).
 """
 
 from __future__ import annotations
@@ -25,19 +28,23 @@ from .evaluate import check_first_box, read_frame
 
 @dataclass(frozen=True)
 class BoxRead:
-    """Median log(w / true w) and log(h / true h) at one shift, over all frames and per width third."""
+    """Median log(w / true w) and log(h / true h) at one shift, over all frames and per width third; the
+    centre's median offset along the shift (true widths) and the share of centres outside the true box."""
 
     shift: float
     width: float
     height: float
     thirds: tuple[tuple[float, float, float, float], ...]  # (low px, high px, width, height)
     frames: int
+    centre: float = float("nan")
+    off: float = float("nan")
 
 
 def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[np.ndarray]:
-    """Per shift: (true width, log width ratio, log height ratio) per frame after the first of every
-    sequence. Each frame is decoded once and read at every shift."""
-    rows: list[list[tuple[float, float, float]]] = [[] for _ in shifts]
+    """Per shift: (true width, log width ratio, log height ratio, centre offset along the shift in true
+    widths, 1 where the centre is outside the true box) per frame after the first of every sequence. Each
+    frame is decoded once and read at every shift."""
+    rows: list[list[tuple[float, float, float, float, float]]] = [[] for _ in shifts]
     for seq in dataset.sequences:
         check_first_box(seq.name, seq.boxes[0])
         tracker.init(read_frame(seq.frames[0]), tuple(seq.boxes[0]))
@@ -46,9 +53,12 @@ def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> 
                 continue  # the target is not in the frame (OTB/UAV123 mark it so)
             frame = read_frame(path)
             for kept, shift in zip(rows, shifts, strict=True):
-                _, _, w, h = tracker.look(frame, tuple(box), (shift, 0.0))
-                kept.append((box[2], np.log(w / box[2]), np.log(h / box[3])))
-    return [np.asarray(r, dtype=np.float64).reshape(-1, 3) for r in rows]
+                x, y, w, h = tracker.look(frame, tuple(box), (shift, 0.0))
+                dx = (x + w / 2) - (box[0] + (box[2] - 1) / 2)  # the true centre as the tracker places crops
+                dy = (y + h / 2) - (box[1] + (box[3] - 1) / 2)
+                outside = abs(dx) > box[2] / 2 or abs(dy) > box[3] / 2
+                kept.append((box[2], np.log(w / box[2]), np.log(h / box[3]), dx / box[2], float(outside)))
+    return [np.asarray(r, dtype=np.float64).reshape(-1, 5) for r in rows]
 
 
 def summarise(shift: float, rows: np.ndarray) -> BoxRead:
@@ -57,7 +67,9 @@ def summarise(shift: float, rows: np.ndarray) -> BoxRead:
     for i, (low, high) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
         inside = (rows[:, 0] >= low) & ((rows[:, 0] < high) if i < 2 else (rows[:, 0] <= high))
         thirds.append((float(low), float(high), *_medians(rows[inside])))
-    return BoxRead(shift, *_medians(rows), tuple(thirds), len(rows))
+    centre = float(np.median(rows[:, 3])) if len(rows) else float("nan")
+    off = float(np.mean(rows[:, 4])) if len(rows) else float("nan")
+    return BoxRead(shift, *_medians(rows), tuple(thirds), len(rows), centre, off)
 
 
 def _medians(rows: np.ndarray) -> tuple[float, float]:
@@ -76,16 +88,19 @@ def format_box_read(dataset: Dataset, reads: Sequence[BoxRead]) -> str:
     heads = [f"{low:.0f}-{high:.0f} px w / h" for low, high, _, _ in first.thirds]
     lines = [f"{dataset.name}: the network's box read around the true box, median log(box / true) "
              f"({first.frames} frames)",
-             f"{'shift (crop px)':<16} {'width':>7} {'height':>7}   " + "   ".join(f"{h:>20}" for h in heads)]
+             f"{'shift (crop px)':<16} {'width':>7} {'height':>7} {'centre':>7} {'off':>6}   "
+             + "   ".join(f"{h:>20}" for h in heads)]
 
-    def row(label: str, width: float, height: float, thirds: Sequence[tuple[float, float]]) -> str:
+    def row(label: str, width: float, height: float, centre: float, off: float,
+            thirds: Sequence[tuple[float, float]]) -> str:
         cells = "   ".join(f"{f'{w:+.3f} / {h:+.3f}':>20}" for w, h in thirds)
-        return f"{label:<16} {width:>+7.3f} {height:>+7.3f}   {cells}"
+        return f"{label:<16} {width:>+7.3f} {height:>+7.3f} {centre:>+7.3f} {off:>6.1%}   {cells}"
 
     for r in reads:
-        lines.append(row(f"{r.shift:g}", r.width, r.height, [(w, h) for _, _, w, h in r.thirds]))
+        lines.append(row(f"{r.shift:g}", r.width, r.height, r.centre, r.off, [(w, h) for _, _, w, h in r.thirds]))
     if len(reads) > 1:
         thirds = [(np.mean([r.thirds[i][2] for r in reads]), np.mean([r.thirds[i][3] for r in reads]))
                   for i in range(len(first.thirds))]
-        lines.append(row("mean", np.mean([r.width for r in reads]), np.mean([r.height for r in reads]), thirds))
+        lines.append(row("mean", *(float(np.mean([getattr(r, k) for r in reads]))
+                                   for k in ("width", "height", "centre", "off")), thirds))
     return "\n".join(lines)
