@@ -445,6 +445,51 @@ def test_a_stretched_target_is_drawn_and_boxed_as_stretched(library):
     assert not plain.target.stretch.any()
 
 
+def test_a_gust_knocks_the_whole_picture_once_and_the_rest_is_the_scene_without_it(library):
+    """`gust`: the same scene as without it (every other draw comes first), its target, background and
+    distractor all moved by one offset that jumps past OTB's 20 px a frame once and drifts back; FM tagged."""
+    for seed in range(6):
+        plain = random_library_scene(np.random.default_rng(seed), library, "test", frames=100, size=(320, 240))
+        gusty = random_library_scene(np.random.default_rng(seed), library, "test", frames=100, size=(320, 240),
+                                     gust=True)
+        knock = gusty.target.centre - plain.target.centre
+        np.testing.assert_allclose(gusty.cameras[:, :, 2] - plain.cameras[:, :, 2], knock, atol=1e-9)
+        np.testing.assert_allclose(gusty.cameras[:, :, :2], plain.cameras[:, :, :2])
+        if plain.distractor is not None:
+            np.testing.assert_allclose(gusty.distractor.centre - plain.distractor.centre, knock, atol=1e-9)
+        steps = np.hypot(*np.diff(knock, axis=0).T)
+        assert steps.max() > 20 and (steps > 1).sum() <= 4 + 60, seed  # one quick jump, a slow drift back
+        assert not knock[:20].any() and np.hypot(*knock.T).max() >= 30
+        assert "FM" in gusty.attributes
+        np.testing.assert_array_equal(plain.render(10)[0], gusty.render(10)[0])  # before the gust: the same
+        assert not np.array_equal(plain.render(99)[0], gusty.render(99)[0]) or not knock[99].any()
+        box = gusty.boxes[np.isfinite(gusty.boxes).all(1)]
+        assert len(box) >= 90  # the target stays in view
+    again = random_library_scene(np.random.default_rng(5), library, "test", frames=100, size=(320, 240), gust=False)
+    np.testing.assert_array_equal(again.boxes, plain.boxes)
+
+
+def test_gusts_need_the_library_source(tmp_path, capsys):
+    with pytest.raises(SceneError, match="gusts need the library source"):
+        write_benchmark(tmp_path / "g", 1, 2, 0, size=SMALL, workers=1, gusts=True)
+    from dadiff.runtime.evaluation.cli import main
+
+    assert main(["generate", "--out", str(tmp_path / "c"), "--frames", "2", "--gusts"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "gusts need the library source" in err[0]
+
+
+def test_a_gust_benchmark_says_so(tmp_path, library):
+    root = write_benchmark(tmp_path / "lib", sequences=1, frames=30, seed=2, size=SMALL, workers=1,
+                           source="library", library=library, gusts=True)
+    assert json.loads((root / "benchmark.json").read_text())["gusts"] is True
+    calm = write_benchmark(tmp_path / "calm", sequences=1, frames=30, seed=2, size=SMALL, workers=1,
+                           source="library", library=library)
+    assert "gusts" not in json.loads((calm / "benchmark.json").read_text())
+    boxes = [load_dataset(r).sequences[1].boxes for r in (root, calm)]
+    assert np.allclose(boxes[0][:6], boxes[1][:6]) and not np.allclose(boxes[0], boxes[1])
+
+
 def test_library_scenes_keep_train_and_test_apart(monkeypatch):
     for split in ("train", "test"):
         monkeypatch.setattr(library_scenes, "_LIBRARY_CACHE", {})  # nothing loaded by another test

@@ -6,7 +6,7 @@ dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
-                     [--cutouts DIR]
+                     [--cutouts DIR] [--gusts]
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
@@ -156,6 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     gen.add_argument("--cutouts", type=Path, help="with --source library: targets from this cut-out folder "
                      "(dadiff-eval cutouts) instead of the library's")
+    gen.add_argument("--gusts", action="store_true", help="with --source library: a gust knocks each sequence's "
+                     "camera once (the picture jumps 20-40 px a frame, then drifts back): fast motion")
     _add_video_parser(sub)
     _add_detect_parser(sub)
     _add_pseudo_label_parser(sub)
@@ -447,6 +449,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         source=args.source,
         night=args.night,
         library=_cutout_library(args),
+        gusts=args.gusts,
     )
     took = time.perf_counter() - start
     night = json.loads((root / "benchmark.json").read_text())["night"]

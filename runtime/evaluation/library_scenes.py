@@ -1,6 +1,7 @@
 """Scenes over the real-photo library (runtime/evaluation/library.py, fetched by `dadiff-eval data fetch`).
 
-A drone camera hovers over an aerial texture or photo, drifting, turning and climbing; the target is a real
+A drone camera hovers over an aerial texture or photo, drifting, turning and climbing (on request knocked by a
+gust: the whole picture jumps 20-40 px a frame and drifts back); the target is a real
 cut-out (BGRA) pasted with its alpha, walking away or coming closer (strong scale change); distractors are
 other cut-outs of the same split, with the library's own train/test split. The box is computed from the
 alpha's outline (alpha > 0.5), as exactly as for the blobs (behind an occluder: leaving out slivers under half
@@ -16,7 +17,7 @@ import cv2
 import numpy as np
 
 from .geometry import place, polygon_area, rotation, visible_box
-from .paths import drone_path, fold, wave
+from .paths import drone_path, fold, smoothstep, wave
 from .photos import check_split
 from .scene import (
     SUPERSAMPLE,
@@ -291,6 +292,23 @@ def _companion_layer(
     return _CutoutLayer(cutout, centre, size, angle, stretch)
 
 
+def _gust(rng: np.random.Generator, target_centre: np.ndarray, width: int, height: int, n: int) -> np.ndarray:
+    """Frame-pixel offsets (N, 2) of a gust that knocks the hovering camera once: the whole picture jumps
+    up to 60-200 px in 3-5 frames (20-40 px a frame on average, past OTB's 20 px fast-motion mark at the
+    peak) and drifts back over 20-60 frames as the drone recovers. The jump pushes the target towards the
+    frame's centre and not past a quarter frame beyond it, so that it stays in view."""
+    length = int(rng.integers(3, 6))
+    i0 = int(rng.integers(n // 5, max(n // 5 + 1, n - length - 1)))
+    recover = int(rng.integers(20, 61))
+    towards = np.array([width / 2, height / 2]) - target_centre[i0]
+    away = float(np.linalg.norm(towards))
+    towards = towards / away if away > 1e-6 else np.array([1.0, 0.0])
+    distance = min(rng.uniform(20, 40) * length, away + min(width, height) / 4)  # not out of the other side
+    t = np.arange(n, dtype=np.float64)
+    knock = smoothstep((t - i0) / length) - smoothstep((t - i0 - length) / recover)
+    return distance * knock[:, None] * towards
+
+
 def _usable(images: list, role: str, rng: np.random.Generator):
     """The library's images of one role, prepared, in a random order, skipping unusable ones (unreadable, no
     opaque part)."""
@@ -322,13 +340,15 @@ def random_library_scene(
     size: tuple[int, int] = (640, 360),
     companion: bool = False,
     stretch: bool = False,
+    gust: bool = False,
 ) -> Scene:
     """A random scene over the real-photo library: one of its backgrounds of `split` seen by a drone camera,
     a cut-out target of `split` (alpha-pasted, exact box), sometimes an occluder and a look-alike distractor
     (another cut-out of `split`). `companion`: the distractor always, walking beside the target, half the
     time a copy of the target's own cut-out (training; the evaluation's scenes leave it off). `stretch`: the
     target not rigid, often upright like a walker (`_stretch_path`; a companion copy of it stretched alike;
-    training, off in the evaluation's scenes). `library`:
+    training, off in the evaluation's scenes). `gust`: the camera knocked once (`_gust`; `dadiff-eval generate
+    --gusts`). Each option off, the scenes are those of before it. `library`:
     what `library.open_library()` returns. Deterministic from the generator state and the library's contents."""
     check_split(split)
     width, height = frame_size(size, frames)
@@ -355,6 +375,12 @@ def random_library_scene(
             sizes = target.size * rng.uniform(0.7, 1.3) * np.exp(wave(rng, frames, 0.2, (60, 200), 1))
             distractor = _cutout_layer(rng, look_alike, np.clip(sizes, 5, 0.9 * height), width, height, frames)
     brightness, lights = random_lighting(rng, background, zoom, frames)
+    if gust and frames > 12:  # drawn last: the scene is the one without the gust, knocked
+        knock = _gust(rng, target.centre, width, height, frames)
+        for layer in (target, occluder, distractor):
+            if layer is not None:
+                layer.centre += knock  # the whole picture moves: what is on the ground and the ground
+        cameras[:, :, 2] += knock
     return Scene((width, height), background, cameras, target, occluder, distractor, brightness, lights)
 
 

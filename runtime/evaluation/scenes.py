@@ -105,13 +105,14 @@ class SceneNight:
 
 
 def _scene_and_night(
-    entropy: list[int], split: str, frames: int, size: tuple[int, int], source: str, night: str, library
+    entropy: list[int], split: str, frames: int, size: tuple[int, int], source: str, night: str, library,
+    gusts: bool = False,
 ) -> tuple[Scene, SceneNight]:
     rng = np.random.default_rng(entropy)
     if source == "skimage":
         scene = Scene.random(rng, load_photos(split), size=size, frames=frames)
     else:
-        scene = random_library_scene(rng, library or open_scene_library(), split, frames, size)
+        scene = random_library_scene(rng, library or open_scene_library(), split, frames, size, gust=gusts)
     classic = NightStyle.random(rng)  # drawn whatever the style: the seeded sequences stay as they were
     return scene, SceneNight(scene, np.random.default_rng([*entropy, 2_000_003]), night, classic)
 
@@ -171,8 +172,8 @@ def _tune_worker() -> None:
 
 
 def _write_sequence(job: tuple) -> tuple[str, tuple[str, ...]]:
-    root, name, entropy, split, frames, size, source, night, library = job
-    scene, camera = _scene_and_night(entropy, split, frames, size, source, night, library)
+    root, name, entropy, split, frames, size, source, night, library, gusts = job
+    scene, camera = _scene_and_night(entropy, split, frames, size, source, night, library, gusts)
     folders = {kind: root / f"{name}_{kind}" for kind in ("day", "night")}
     for folder in folders.values():
         (folder / "img").mkdir(parents=True, exist_ok=True)
@@ -198,12 +199,16 @@ def write_benchmark(
     source: str = "skimage",
     night: str | None = None,
     library=None,
+    gusts: bool = False,
 ) -> Path:
     """Write an OTB-layout benchmark: `<root>/seqNNN_day/img/0001.jpg...`, `groundtruth_rect.txt`, the same
     for `_night`, `attributes.json` and `benchmark.json`. Sequence k uses seed entropy [seed, k]. `source`,
-    `night` and `library` as for `make_sequence`. Returns `root`."""
+    `night` and `library` as for `make_sequence`; `gusts` (library only): each sequence's camera knocked once
+    by a gust (fast motion of the whole picture). Returns `root`."""
     check_split(split)
     night = _source_and_night(source, night)
+    if gusts and source != "library":
+        raise SceneError("gusts need the library source (--source library)")
     if sequences < 1 or frames < 1:
         raise SceneError(f"need at least one sequence and one frame, got {sequences} x {frames}")
     root = Path(root).expanduser()
@@ -219,7 +224,7 @@ def write_benchmark(
         load_photos(split)
     workers = max(1, min(workers or os.cpu_count() or 1, sequences))
     jobs = [
-        (root, f"seq{k + 1:03d}", [int(seed), k], split, frames, tuple(size), source, night, library)
+        (root, f"seq{k + 1:03d}", [int(seed), k], split, frames, tuple(size), source, night, library, gusts)
         for k in range(sequences)
     ]
     if workers == 1:
@@ -243,6 +248,8 @@ def write_benchmark(
         "sequences": sequences,
         "frames": frames,
     }
+    if gusts:
+        info["gusts"] = True
     if getattr(library, "folder", None) is not None:  # a CutoutTargets: whose targets the scenes show
         info["cutouts"] = str(Path(library.folder).resolve())
     (root / "benchmark.json").write_text(json.dumps({**info, "size": list(size)}, indent=1) + "\n")
