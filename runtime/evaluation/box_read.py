@@ -36,8 +36,8 @@ class BoxRead:
     height: float
     thirds: tuple[tuple[float, float, float, float], ...]  # (low px, high px, width, height)
     frames: int
-    centre: float = float("nan")
-    off: float = float("nan")
+    centre: float  # median offset of the box's centre along the shift, in true widths
+    off: float  # share of reads whose centre is outside the true box
 
 
 def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[np.ndarray]:
