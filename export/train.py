@@ -81,6 +81,7 @@ class TrainConfig:
     align_target: str = "eps"             # "eps": paper eq. 6; "chain": the sampler's output vs the day output;
     #                                       "restore": aligned night features vs the paired day neck features
     search_scale: float = CropConfig.search_scale  # search crops rescaled by exp(U(-s, s)) around the target
+    search_shift: float = CropConfig.search_shift  # search crops moved U(-s, s) crop px each way off the target
     loc_region: str = "ellipse"           # box regression at BAN's positive points, or "box": every point inside
     lambda_side: float = 0.0              # per-side log-distance loss beside the IoU loss, within the box loss
     grad_clip: float = 10.0
@@ -473,7 +474,8 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0
     is seeded by the step it starts at; step 0 is the stream of a run that was never interrupted)."""
     tr = net.cfg.tracker
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
-                      score_size=tr.score_size, context=tr.context_amount, search_scale=cfg.search_scale)
+                      score_size=tr.score_size, context=tr.context_amount, search_scale=cfg.search_scale,
+                      search_shift=cfg.search_shift)
     stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
                         with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step,
                         night_pairs=cfg.night_pairs, night_path_lamps=cfg.night_path_lamps,

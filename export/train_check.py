@@ -22,14 +22,14 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "backbone_lr_mult": (0, True), "dadiff_lr_mult": (0, True), "weight_decay": (0, True),
     "disc_lr": (0, False), "disc_poly_power": (0, True),
     "lambda_trc": (0, True), "lambda_loc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True),
-    "grad_clip": (0, False), "search_scale": (0, True),
+    "grad_clip": (0, False), "search_scale": (0, True), "search_shift": (0, True),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
     "lambda_night_distill": (0, True), "night_path_lamps": (0, True), "negative_pairs": (0, True),
     "lambda_side": (0, True), "ema_decay": (0, True),
 }
 MAXIMUM: dict[str, tuple[float, bool]] = {  # (high, inclusive), as MINIMUM
     "night_path_lamps": (1.0, True), "negative_pairs": (1.0, True), "search_scale": (1.0, True),
-    "ema_decay": (1.0, False),
+    "ema_decay": (1.0, False), "search_shift": (128.0, True),
 }
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain", "restore"),

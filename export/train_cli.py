@@ -51,6 +51,8 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("align_target", '"eps"', '"eps" (paper eq. 6), "chain": sampler output on night vs on the paired day frame, '
      '"restore": aligned night features vs the paired day neck features'),
     ("search_scale", "0.18", "search crops rescaled by exp(U(-s, s)) around the target (0-1)"),
+    ("search_shift", "64.0", "search crops moved U(-s, s) crop px each way off the target (0-128): how far "
+     "a target may jump"),
     ("loc_region", '"ellipse"', 'box regressed at BAN\'s positive "ellipse" or at every point in the "box"'),
     ("lambda_side", "0.0", "each box side's own log error (floor 4 crop px) beside the IoU loss, within the box loss"),
     ("grad_clip", "10.0", "gradient norm clip (> 0)"),

@@ -324,6 +324,25 @@ def test_search_scale_sets_how_far_the_crop_strays_from_the_target_size(tmp_path
     assert wide.max() / wide.min() > 1.1 and np.all(np.abs(np.log(wide / exemplar)) <= 0.5 + 0.01)
 
 
+def test_search_shift_sets_how_far_the_target_strays_from_the_crop_centre(tmp_path, image_folder):
+    """The positive points of each search crop's label lie where the target was moved to: at 0 on the
+    centre cell, with a wide shift spread up to that many crop px off it (never farther)."""
+
+    def offsets(search_shift: float) -> tuple[np.ndarray, int]:  # crop px from the centre to the positives
+        cfg = config(tmp_path, image_folder, stage="baseline", night=None, batch_size=8, search_shift=search_shift,
+                     search_scale=0.0)
+        net = Trainer(cfg).net
+        batch = next(iter(data_loader(cfg, net, 0)))
+        centre = (batch["label"].shape[-1] - 1) / 2
+        cells = [np.abs(np.argwhere(label.numpy() == 1).mean(0) - centre).max() for label in batch["label"]]
+        return np.array(cells) * net.cfg.tracker.stride, net.cfg.tracker.stride
+
+    still, stride = offsets(0.0)
+    assert still.max() <= stride / 2
+    wide, _ = offsets(96.0)
+    assert wide.max() > 40 and wide.max() <= 96 + stride
+
+
 def test_teacher_needs_a_stride_16_family(tmp_path, image_folder):
     cfg = config(tmp_path, image_folder, stage="baseline", teacher=str(tmp_path))
     with pytest.raises(ValueError, match="stride-16"):
