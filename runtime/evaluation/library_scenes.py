@@ -294,9 +294,10 @@ def _companion_layer(
 
 def _gust(rng: np.random.Generator, target_centre: np.ndarray, width: int, height: int, n: int) -> np.ndarray:
     """Frame-pixel offsets (N, 2) of a gust that knocks the hovering camera once: the whole picture jumps
-    up to 60-200 px in 3-5 frames (20-40 px a frame on average, past OTB's 20 px fast-motion mark at the
-    peak) and drifts back over 20-60 frames as the drone recovers. The jump pushes the target towards the
-    frame's centre and not past a quarter frame beyond it, so that it stays in view."""
+    60-200 px in 3-5 frames (20-40 px a frame on average, past OTB's 20 px fast-motion mark at the peak)
+    and drifts back over 20-60 frames as the drone recovers. The jump pushes the target towards the frame's
+    centre and not past a quarter frame beyond it, so that it stays in view (a target near the centre of a
+    small frame therefore jumps less)."""
     length = int(rng.integers(3, 6))
     i0 = int(rng.integers(n // 5, max(n // 5 + 1, n - length - 1)))
     recover = int(rng.integers(20, 61))
