@@ -60,6 +60,9 @@ class Params:
     `max_scale_change`, `max_aspect_change`: the box's sqrt(area) and its w/h aspect stay within this factor
     of the initial box's; a frame whose box these limits hold back is never 'tracking'.
     `max_frame_cover`: a box covering more than this share of the frame is implausible, never 'tracking'.
+    `motion_compensation`: above 0, the search region moves with the whole picture (runtime/motion.py: a
+    gust, a quick yaw) wherever the phase-correlation peak of two consecutive frames reaches this value;
+    0 (the default) leaves it off.
     """
 
     lr: float
@@ -77,6 +80,7 @@ class Params:
     max_scale_change: float = 8.0
     max_aspect_change: float = 4.0
     max_frame_cover: float = 0.5
+    motion_compensation: float = 0.0
 
     @property
     def released(self) -> bool:
@@ -106,6 +110,7 @@ _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "max_scale_change": (1.0, 1000.0),
     "max_aspect_change": (1.0, 1000.0),
     "max_frame_cover": (0.01, 1.0),
+    "motion_compensation": (0.0, 1.0),
 }
 
 

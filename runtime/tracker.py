@@ -3,6 +3,7 @@
 Differences from the released tracker, all switchable through parameters:
 - a lost/found state (runtime/lost.py): while lost, box centre and size stay where they were and the
   search region grows;
+- optionally (`motion_compensation`), the search region moved with the whole picture (runtime/motion.py);
 - plausibility: the size changes by at most `max_scale_step` per frame and stays within `max_scale_change`
   (scale) and `max_aspect_change` (aspect) of the initial box; a box held at those limits or covering more
   than `max_frame_cover` of the frame is never 'tracking'; tracking/uncertain follow a smoothed confidence
@@ -29,6 +30,7 @@ from .decode import Decoder, Detection
 from .errors import InputError, ModelError
 from .frames import as_image, to_blob
 from .lost import LOST, LostMonitor
+from .motion import PictureMotion
 from .onnx_backend import OnnxBackend
 
 
@@ -122,6 +124,8 @@ class Tracker:
         g = self.geometry
         self._decode = Decoder(g.score_size, g.stride, g.point_origin)
         self._monitor = LostMonitor(self.params)
+        compensate = self.params.motion_compensation > 0 and not self.params.released
+        self._motion = PictureMotion(self.params.motion_compensation) if compensate else None
         self._feeds: dict[str, np.ndarray] | None = None
         self._centre = (0.0, 0.0)
         self._size = (0.0, 0.0)
@@ -174,6 +178,8 @@ class Tracker:
         z = self._crop(image, self.geometry.exemplar_size, self._context_side())
         self._feeds = self.backend.template(z)
         self._monitor = LostMonitor(self.params)
+        if self._motion is not None:
+            self._motion.reset(image)
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame; the search graph runs once."""
@@ -182,6 +188,8 @@ class Tracker:
         t0 = time.perf_counter()
         image = as_image(frame)
         g, p = self.geometry, self.params
+        if self._motion is not None and (moved := self._motion.shift(image)) is not None:
+            self._centre = (self._centre[0] + moved[0], self._centre[1] + moved[1])  # where the picture took it
         growth = self._monitor.growth
         s_z = self._context_side()
         scale = g.exemplar_size / s_z / growth  # crop pixels per frame pixel
