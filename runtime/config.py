@@ -62,7 +62,7 @@ class Params:
     `max_frame_cover`: a box covering more than this share of the frame is implausible, never 'tracking'.
     `motion_compensation`: above 0, the search region moves with the whole picture (runtime/motion.py: a
     gust, a quick yaw) wherever the phase-correlation peak of two consecutive frames reaches this value;
-    0 (the default) leaves it off.
+    0 (the default) leaves it off, and the released tracker (`lost_score=0`) ignores it.
     """
 
     lr: float
