@@ -21,7 +21,6 @@ class PictureMotion:
         self.min_response = min_response
         self._previous: np.ndarray | None = None
         self._window: np.ndarray | None = None
-        self._factor = 1.0
 
     def reset(self, image: np.ndarray) -> None:
         """Start again from this frame (a new target)."""
@@ -40,11 +39,12 @@ class PictureMotion:
         (dx, dy), response = cv2.phaseCorrelate(previous, small, self._window)
         if not response >= self.min_response:
             return None
-        return dx * self._factor, dy * self._factor
+        factor = image.shape[1] / SMALL_WIDTH  # frame px per small px
+        return dx * factor, dy * factor
 
-    def _small(self, image: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _small(image: np.ndarray) -> np.ndarray:
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         h, w = grey.shape[:2]
-        self._factor = w / SMALL_WIDTH
-        size = (SMALL_WIDTH, max(8, round(h / self._factor)))
+        size = (SMALL_WIDTH, max(8, round(h * SMALL_WIDTH / w)))
         return cv2.resize(grey, size, interpolation=cv2.INTER_AREA).astype(np.float32)

@@ -8,6 +8,7 @@ import pytest
 from test_runtime_plausible import ScriptedBackend
 
 from dadiff.runtime import Tracker
+from dadiff.runtime.errors import InputError
 from dadiff.runtime.motion import PictureMotion
 
 
@@ -66,5 +67,5 @@ def test_the_tracker_moves_its_search_region_with_the_picture_only_when_asked() 
 
 
 def test_motion_compensation_is_checked() -> None:
-    with pytest.raises(Exception, match="motion_compensation"):
+    with pytest.raises(InputError, match="motion_compensation"):
         Tracker(ScriptedBackend([0.9], 20.0), overrides={"motion_compensation": 2})
