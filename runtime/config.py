@@ -60,9 +60,9 @@ class Params:
     `max_scale_change`, `max_aspect_change`: the box's sqrt(area) and its w/h aspect stay within this factor
     of the initial box's; a frame whose box these limits hold back is never 'tracking'.
     `max_frame_cover`: a box covering more than this share of the frame is implausible, never 'tracking'.
-    `motion_compensation`: above 0, the search region moves with the whole picture (runtime/motion.py: a
-    gust, a quick yaw) wherever the phase-correlation peak of two consecutive frames reaches this value;
-    0 (the default) leaves it off, and the released tracker (`lost_score=0`) ignores it.
+    `motion_compensation`: above 0, the search region moves with the whole picture's jolts (runtime/motion.py:
+    a gust, a quick yaw; not its steady flow) wherever the phase-correlation peak of two consecutive frames
+    reaches this value; 0 turns it off, and the released tracker (`lost_score=0`) ignores it.
     """
 
     lr: float
@@ -80,7 +80,7 @@ class Params:
     max_scale_change: float = 8.0
     max_aspect_change: float = 4.0
     max_frame_cover: float = 0.5
-    motion_compensation: float = 0.0
+    motion_compensation: float = 0.2
 
     @property
     def released(self) -> bool:

@@ -188,8 +188,8 @@ class Tracker:
         t0 = time.perf_counter()
         image = as_image(frame)
         g, p = self.geometry, self.params
-        if self._motion is not None and (moved := self._motion.shift(image)) is not None:
-            self._centre = (self._centre[0] + moved[0], self._centre[1] + moved[1])  # where the picture took it
+        if self._motion is not None and (moved := self._motion.jolt(image)) is not None:
+            self._centre = (self._centre[0] + moved[0], self._centre[1] + moved[1])  # where the jolt took it
         growth = self._monitor.growth
         s_z = self._context_side()
         scale = g.exemplar_size / s_z / growth  # crop pixels per frame pixel

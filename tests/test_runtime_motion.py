@@ -1,5 +1,6 @@
-"""Moving the search region with the whole picture (`motion_compensation`, runtime/motion.py): the read
-shift of a textured frame, no read on a flat one, and the tracker's box carried along only when asked."""
+"""Moving the search region with the whole picture's jolts (`motion_compensation`, runtime/motion.py): the
+read shift of a textured frame, no read on a flat one, a jolt only where the shift departs from the steady
+motion, and the tracker's box carried along by a jolt only when asked."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from test_runtime_plausible import ScriptedBackend
 
 from dadiff.runtime import Tracker
 from dadiff.runtime.errors import InputError
-from dadiff.runtime.motion import PictureMotion
+from dadiff.runtime.motion import TREND_READS, PictureMotion
 
 
 def _ground(seed: int = 0) -> np.ndarray:
@@ -47,23 +48,56 @@ def test_a_changed_picture_gives_no_read_and_a_flat_one_no_motion() -> None:
     assert PictureMotion(0.2).shift(flat) is None  # nothing to compare with yet
 
 
-def test_the_tracker_moves_its_search_region_with_the_picture_only_when_asked() -> None:
-    """The scripted network always answers the crop's centre (it never finds anything by itself): with
-    compensation the box follows a picture moved 30 px, without it the box stays, and the released tracker
-    (lost_score 0) ignores the setting."""
+def _jolts(steps: list[tuple[int, int]]) -> list[tuple[float, float] | None]:
+    """What `jolt` says for a camera whose picture moves by each of `steps` in turn (frame px)."""
+    ground, motion = _ground(), PictureMotion(0.2)
+    x = y = 0
+    motion.reset(_view(ground, x, y))
+    out = []
+    for dx, dy in steps:
+        x, y = x + dx, y + dy
+        out.append(motion.jolt(_view(ground, x, y)))
+    return out
+
+
+def test_a_steady_drift_is_no_jolt_and_a_gust_on_top_of_it_is() -> None:
+    """A drone following its target drifts steadily: no jolt. A gust's 30 px steps on top of that drift
+    are jolts of 30 px, the drift left out, and the drift after it is steady again."""
+    drift = [(-4, 1)] * 14
+    assert _jolts(drift) == [None] * 14
+    read = _jolts(drift + [(-34, 1)] * 3 + drift[:4])
+    for jolt in read[14:17]:
+        assert jolt is not None and jolt == pytest.approx((-30, 0), abs=3.0)
+    assert read[:14] == [None] * 14 and read[17:] == [None] * 4
+
+
+def test_a_lasting_change_of_motion_stops_being_a_jolt() -> None:
+    """A drone that turns back drifts the other way from then on: jolts for at most half the trend's
+    reads, then steady."""
+    read = _jolts([(6, 0)] * 12 + [(-6, 0)] * 12)
+    jolts = [k for k, jolt in enumerate(read) if jolt is not None]
+    assert jolts and jolts[0] == 12 and len(jolts) <= TREND_READS // 2 + 1
+
+
+def test_the_tracker_moves_its_search_region_with_a_jolt_unless_told_not_to() -> None:
+    """The scripted network always answers the crop's centre (it never finds anything by itself): by
+    default the box follows a picture jolted 30 px after a still hover, with `motion_compensation=0` it
+    stays, and the released tracker (lost_score 0) ignores the setting."""
     ground = _ground()
     box = (200.0, 150.0, 40.0, 40.0)
 
     def centre_after(**overrides: object) -> tuple[float, float]:
         tracker = Tracker(ScriptedBackend([0.95], 20.0), overrides=overrides)
         tracker.init(_view(ground, 0, 0), box)
+        for _ in range(4):
+            tracker.update(_view(ground, 0, 0))
         x, y, w, h = tracker.update(_view(ground, 30, -12)).box
         return x + w / 2, y + h / 2
 
-    still = centre_after()
-    moved = centre_after(motion_compensation=0.2)
+    still = centre_after(motion_compensation=0)
+    moved = centre_after()  # on by default
     assert moved == pytest.approx((still[0] + 30, still[1] - 12), abs=3.0)
-    assert centre_after(motion_compensation=0.2, lost_score=0) == pytest.approx(still)
+    assert centre_after(lost_score=0) == pytest.approx(still)
 
 
 def test_motion_compensation_is_checked() -> None:
