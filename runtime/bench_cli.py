@@ -38,7 +38,7 @@ from .bench import (
     time_search,
     write_night_video,
 )
-from .cli import positive_int
+from .cli import hp_arg, positive_int
 from .cpu import cpu_flags
 from .errors import InputError, ModelError, OneLineParser
 from .evaluation.datasets import Dataset, DatasetError
@@ -85,6 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="generated night sequence (default 0, test photos)")
     p.add_argument("--threads", type=positive_int, help="intra-op threads (default: physical cores)")
     p.add_argument("--provider", help="onnxruntime execution provider (default: the best available)")
+    p.add_argument("--hp", type=hp_arg, default={}, metavar="k=v,...",
+                   help="tracker settings for every model, as dadiff-run --hp (e.g. motion_compensation=0)")
     p.add_argument("--success", type=int, default=0, metavar="N",
                    help="also score night success on the first N sequences of the generated night benchmark "
                         f"(seed {SUCCESS_SEED}, test photos)")
@@ -135,7 +137,7 @@ def _checkpoint(args: argparse.Namespace, folder: Path) -> Path:
 
 
 def _model_lane(model: Path, args: argparse.Namespace, video: NightVideo) -> BenchLane:
-    tracker = Tracker.load(model, provider=args.provider, threads=args.threads)
+    tracker = Tracker.load(model, provider=args.provider, threads=args.threads, overrides=args.hp)
     return BenchLane(tracker, video, args.frames)
 
 

@@ -62,7 +62,8 @@ def _box_arg(text: str) -> tuple[float, float, float, float]:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _hp_arg(text: str) -> dict[str, str]:
+def hp_arg(text: str) -> dict[str, str]:
+    """argparse type: tracker settings as key=value pairs separated by commas (checked by the tracker)."""
     values = {}
     for item in filter(None, (p.strip() for p in text.split(","))):
         key, sep, value = item.partition("=")
@@ -111,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--preset", help="named hyper-parameter preset from the model (e.g. UAVDark70)")
     parser.add_argument(
         "--hp",
-        type=_hp_arg,
+        type=hp_arg,
         default={},
         metavar="k=v,...",
         help="override " + ", ".join(TUNABLE_KEYS),

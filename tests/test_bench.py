@@ -100,6 +100,7 @@ def test_peak_is_measured(model_dir: Path, capsys) -> None:
         (["{model}", "--sweep-steps", "one", "--checkpoint", "{model}/search.onnx"], "--sweep-steps"),
         (["{model}", "--success", "-1"], "--success and --interleave must be >= 0"),
         (["{model}", "--interleave", "-5"], "--interleave must be >= 0"),
+        (["{model}", "--hp", "foo=1", "--frames", "2"], "unknown override 'foo'"),
     ],
 )
 def test_bad_input_is_one_line(model_dir: Path, capsys, argv: list[str], expected: str) -> None:

@@ -175,6 +175,21 @@ def test_nano_without_weights_is_one_line_exit_2(bench, tmp_path, capsys):
     assert "--nano-dir does not apply" in _one_error_line(capsys)
 
 
+def test_run_takes_tracker_settings(corr_model, bench, tmp_path, capsys):
+    """`--hp` reaches the evaluated tracker; a wrong key or a baseline tracker is one line and exit 2."""
+    from dadiff.runtime.evaluation.cli import _make_tracker, build_parser
+
+    args = build_parser().parse_args(["run", "--model", str(corr_model), "--dataset", str(bench), "--results",
+                                      str(tmp_path), "--hp", "motion_compensation=0,lost_frames=5"])
+    params = _make_tracker(args)[0].tracker.params
+    assert (params.motion_compensation, params.lost_frames) == (0.0, 5)
+    base = ["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]
+    assert main([*base, "--model", str(corr_model), "--hp", "foo=1"]) == 2
+    assert "unknown override 'foo'" in _one_error_line(capsys)
+    assert main([*base, "--tracker", "csrt", "--hp", "lost_frames=5"]) == 2
+    assert "--hp does not apply to --tracker csrt" in _one_error_line(capsys)
+
+
 def _one_error_line(capsys) -> str:
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err

@@ -27,7 +27,7 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..cli import positive_int
+from ..cli import hp_arg, positive_int
 from ..errors import InputError, ModelError, OneLineParser
 from ..sources import quiet_opencv
 from .anatomy import anatomy, format_anatomy, format_honesty, grey_bins, honesty
@@ -103,6 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: ../shared/weights/nanotrack/v2 beside the checkout)")
     run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO)")
     run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
+    run.add_argument("--hp", type=hp_arg, default={}, metavar="k=v,...",
+                     help="tracker settings over the preset's, as dadiff-run --hp (e.g. motion_compensation=0.2)")
     run.add_argument("--threads", type=positive_int,
                      help="onnxruntime threads (default: one per physical core)")
     run.add_argument("--compare", nargs="+", type=Path, default=[], metavar="DIR", help="more result folders")
@@ -330,7 +332,7 @@ def report(
 
 def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
     if args.tracker != "dadiff":
-        for option in ("model", "preset", "threads"):
+        for option in ("model", "preset", "hp", "threads"):
             if getattr(args, option):
                 raise InputError(f"--{option} does not apply to --tracker {args.tracker}")
         if args.nano_dir and args.tracker != "nano":
@@ -346,7 +348,7 @@ def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
         name = args.name or resolve(args.model).name
     except ModelNotFoundError as exc:
         raise ModelError(str(exc)) from None
-    tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads)
+    tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads, overrides=args.hp)
     return RuntimeTracker(tracker), name
 
 
