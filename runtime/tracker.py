@@ -3,7 +3,8 @@
 Differences from the released tracker, all switchable through parameters:
 - a lost/found state (runtime/lost.py): while lost, box centre and size stay where they were and the
   search region grows;
-- optionally (`motion_compensation`), the search region moved with the whole picture (runtime/motion.py);
+- when the whole picture jolts (a gust, a quick yaw), the search region moved with it first
+  (`motion_compensation`, runtime/motion.py);
 - plausibility: the size changes by at most `max_scale_step` per frame and stays within `max_scale_change`
   (scale) and `max_aspect_change` (aspect) of the initial box; a box held at those limits or covering more
   than `max_frame_cover` of the frame is never 'tracking'; tracking/uncertain follow a smoothed confidence

@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO)")
     run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
     run.add_argument("--hp", type=hp_arg, default={}, metavar="k=v,...",
-                     help="tracker settings over the preset's, as dadiff-run --hp (e.g. motion_compensation=0.2)")
+                     help="tracker settings over the preset's, as dadiff-run --hp (e.g. motion_compensation=0)")
     run.add_argument("--threads", type=positive_int,
                      help="onnxruntime threads (default: one per physical core)")
     run.add_argument("--compare", nargs="+", type=Path, default=[], metavar="DIR", help="more result folders")
