@@ -24,7 +24,7 @@ from .evaluation.scenes import make_sequence
 from .outputs import open_mp4
 from .tracker import Tracker, TrackResult
 
-STAGES = ("decode", "crop", "search", "post", "encode", "tracker", "frame")
+STAGES = ("decode", "motion", "crop", "search", "post", "encode", "tracker", "frame")
 RSS_EVERY = 500  # frames between resident-memory samples
 
 
@@ -209,8 +209,8 @@ class BenchLane:
                     self.encode(result, (frame.shape[1], frame.shape[0]), i)
                     t3 = time.perf_counter()
                     lat = result.latency
-                    timed = {"decode": t1 - t0, "crop": lat["crop"], "search": lat["search"], "post": lat["post"],
-                             "encode": t3 - t2, "tracker": t2 - t1, "frame": t3 - t0}
+                    timed = {"decode": t1 - t0, "motion": lat["motion"], "crop": lat["crop"], "search": lat["search"],
+                             "post": lat["post"], "encode": t3 - t2, "tracker": t2 - t1, "frame": t3 - t0}
                 for name, value in timed.items():
                     run.stages[name][i] = value
                 if (i + 1) % RSS_EVERY == 0 or i == self.frames - 1:

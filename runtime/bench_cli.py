@@ -60,7 +60,8 @@ from .onnx_backend import physical_cores, thread_count
 from .tracker import Tracker
 
 ROWS = (
-    ("decode", "video decode"), ("crop", "search crop"), ("search", "search graph (ONNX)"),
+    ("decode", "video decode"), ("motion", "picture motion (jolts)"), ("crop", "search crop"),
+    ("search", "search graph (ONNX)"),
     ("post", "decode box + state"), ("encode", "MAVLink 275 encode"), ("tracker", "Tracker.update"),
     ("frame", "frame end to end"), ("template", "template branch (per init)"),
 )

@@ -191,6 +191,7 @@ class Tracker:
         g, p = self.geometry, self.params
         if self._motion is not None and (moved := self._motion.jolt(image)) is not None:
             self._centre = (self._centre[0] + moved[0], self._centre[1] + moved[1])  # where the jolt took it
+        t_motion = time.perf_counter()
         growth = self._monitor.growth
         s_z = self._context_side()
         scale = g.exemplar_size / s_z / growth  # crop pixels per frame pixel
@@ -213,7 +214,7 @@ class Tracker:
         w, h = self._clip_size((w, h), img_w, img_h)
         self._centre, self._size = (cx, cy), (w, h)
         t3 = time.perf_counter()
-        latency = {"crop": t1 - t0, "search": t2 - t1, "post": t3 - t2, "total": t3 - t0}
+        latency = {"motion": t_motion - t0, "crop": t1 - t_motion, "search": t2 - t1, "post": t3 - t2, "total": t3 - t0}
         return TrackResult((cx - w / 2, cy - h / 2, w, h), det.score, state, latency, self._monitor.confidence)
 
     def look(self, frame: np.ndarray, box: Sequence[float], shift: tuple[float, float] = (0.0, 0.0)

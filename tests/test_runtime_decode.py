@@ -152,7 +152,7 @@ def test_update_matches_spec_loop(preset: str | None) -> None:
     for got, want in zip(ours, ref, strict=True):
         assert got.box == pytest.approx(want[:4], rel=1e-9, abs=1e-9)
         assert got.score == pytest.approx(want[4], rel=1e-6)
-        assert set(got.latency) == {"crop", "search", "post", "total"}
+        assert set(got.latency) == {"motion", "crop", "search", "post", "total"}
     assert [c[0] for c in backend.calls] == ["template"] + ["search"] * 12
     assert backend.calls[0][1] == (1, 3, 127, 127) and backend.calls[1][1] == (1, 3, 255, 255)
 

@@ -35,7 +35,7 @@ def test_tracks_moving_scaling_object(tracker: Tracker) -> None:
     assert np.mean(ious) > 0.7 and min(ious) > 0.4
     assert {r.state for r in results} == {"tracking"}
     assert all(0.0 <= r.score <= 1.0 for r in results)
-    assert all(set(r.latency) == {"crop", "search", "post", "total"} for r in results)
+    assert all(set(r.latency) == {"motion", "crop", "search", "post", "total"} for r in results)
     # the object grows from 40 to about 60 px and shrinks again: the size estimate follows it
     sizes = [r.box[2] for r in results]
     assert max(sizes) > 52 and sizes[-1] < max(sizes) - 6
