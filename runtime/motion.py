@@ -32,12 +32,13 @@ class PictureMotion:
         self.min_response = min_response
         self._previous: np.ndarray | None = None
         self._spare: np.ndarray | None = None  # the small frame before the previous one, reused as a buffer
+        self._size: tuple[int, ...] = ()  # the previous frame's height and width
         self._window: np.ndarray | None = None
         self._reads: deque[tuple[float, float]] = deque(maxlen=TREND_READS)
 
     def reset(self, image: np.ndarray) -> None:
         """Start again from this frame (a new target): no trend yet."""
-        self._previous, self._spare = self._small(image), None
+        self._previous, self._spare, self._size = self._small(image), None, image.shape[:2]
         self._reads.clear()
 
     def jolt(self, image: np.ndarray) -> tuple[float, float] | None:
@@ -58,7 +59,9 @@ class PictureMotion:
         previous one either way."""
         small = self._small(image)
         previous, self._previous, self._spare = self._previous, small, self._previous
-        if previous is None or previous.shape != small.shape:
+        size, self._size = self._size, image.shape[:2]
+        if previous is None or size != self._size:
+            self._reads.clear()  # shifts of another frame size are in other pixels
             return None
         if self._window is None or self._window.shape != small.shape:
             self._window = cv2.createHanningWindow((small.shape[1], small.shape[0]), cv2.CV_32F)

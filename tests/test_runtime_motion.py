@@ -79,6 +79,17 @@ def test_a_lasting_change_of_motion_stops_being_a_jolt() -> None:
     assert jolts and jolts[0] == 12 and len(jolts) <= TREND_READS // 2 + 1
 
 
+def test_a_new_frame_size_starts_the_steady_motion_again() -> None:
+    """Shifts read at another frame size are in other pixels: after a size change the steady motion is
+    learnt anew, and a steady drift at the new size is no jolt."""
+    ground, motion = _ground(), PictureMotion(0.2)
+    motion.reset(_view(ground, 0, 0))
+    for x in range(-30, -150, -30):  # a steady 30 px a frame at 480 px wide
+        assert motion.jolt(_view(ground, x, 0)) is None
+    half = [np.ascontiguousarray(_view(ground, x, 0)[::2, ::2]) for x in (-150, -154, -158, -162)]
+    assert [motion.jolt(frame) for frame in half] == [None] * 4  # 2 px a frame at 240 px wide
+
+
 def test_the_tracker_moves_its_search_region_with_a_jolt_unless_told_not_to() -> None:
     """The scripted network always answers the crop's centre (it never finds anything by itself): by
     default the box follows a picture jolted 30 px after a still hover, with `motion_compensation=0` it
