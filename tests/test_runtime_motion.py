@@ -1,6 +1,6 @@
 """Moving the search region with the whole picture's jolts (`motion_compensation`, runtime/motion.py): the
 read shift of a textured frame, no read on a flat one, a jolt only where the shift departs from the steady
-motion, and the tracker's box carried along by a jolt only when asked."""
+motion, and the tracker's box carried along by a jolt unless told not to."""
 
 from __future__ import annotations
 
