@@ -39,7 +39,7 @@ class PictureMotion:
 
     def reset(self, image: np.ndarray) -> None:
         """Start again from this frame (a new target): no trend yet."""
-        self._previous, self._spare, self._size = self._small(image), None, image.shape[:2]
+        self._previous, self._spare, self._size = self._small(image), self._previous, image.shape[:2]
         self._reads.clear()
 
     def jolt(self, image: np.ndarray) -> tuple[float, float] | None:
@@ -49,7 +49,10 @@ class PictureMotion:
         read = self.shift(image)
         if read is None:
             return None
-        steady = np.median(self._reads, axis=0) if self._reads else np.asarray(read)
+        if not self._reads:  # the first read: the steady motion starts from it
+            self._reads.append(read)
+            return None
+        steady = np.median(self._reads, axis=0)
         self._reads.append(read)
         dx, dy = read[0] - steady[0], read[1] - steady[1]
         return (float(dx), float(dy)) if math.hypot(dx, dy) > JOLT_FRACTION * image.shape[1] else None
