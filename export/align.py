@@ -29,6 +29,27 @@ def position_code(row_embed: nn.Embedding, col_embed: nn.Embedding, h: int, w: i
     return pos.permute(2, 0, 1)[None]
 
 
+def attend(mha: nn.MultiheadAttention, x: torch.Tensor, keys: torch.Tensor | None, training: bool) -> torch.Tensor:
+    """Multi-head attention of the tokens `x` (B, N, C) over `keys` (B, M, C; `x` itself when None) with
+    nn.MultiheadAttention's weights, written out with matmuls so that the FLOP counter sees the attention itself
+    and the ONNX graph stays plain MatMul/Softmax."""
+    b, n, c = x.shape
+    heads = mha.num_heads
+    if keys is None:
+        m = n
+        q, k, v = F.linear(x, mha.in_proj_weight, mha.in_proj_bias).chunk(3, dim=-1)
+    else:
+        m = keys.shape[1]
+        q = F.linear(x, mha.in_proj_weight[:c], mha.in_proj_bias[:c])
+        k, v = F.linear(keys, mha.in_proj_weight[c:], mha.in_proj_bias[c:]).chunk(2, dim=-1)
+    q = q.reshape(b, n, heads, c // heads).transpose(1, 2)
+    k, v = (t.reshape(b, m, heads, c // heads).transpose(1, 2) for t in (k, v))
+    weights = torch.softmax(torch.matmul(q, k.transpose(-2, -1)) * (c // heads) ** -0.5, dim=-1)
+    weights = F.dropout(weights, mha.dropout, training)
+    out = torch.matmul(weights, v).transpose(1, 2).reshape(b, n, c)
+    return mha.out_proj(out)
+
+
 class TrackingOrientedEncoderLayer(nn.Module):
     """One encoder layer of eq. 7 on batch-first tokens (B, N, C); key names are the released ones."""
 
@@ -63,17 +84,7 @@ class TrackingOrientedEncoderLayer(nn.Module):
         return w.flatten(1)[:, None, :]
 
     def attention(self, x: torch.Tensor) -> torch.Tensor:
-        """Multi-head self-attention with nn.MultiheadAttention's weights, written out with matmuls so that
-        the FLOP counter sees the attention itself and the ONNX graph stays plain MatMul/Softmax."""
-        mha = self.self_attn
-        b, n, c = x.shape
-        heads = mha.num_heads
-        q, k, v = F.linear(x, mha.in_proj_weight, mha.in_proj_bias).chunk(3, dim=-1)
-        q, k, v = (t.reshape(b, n, heads, c // heads).transpose(1, 2) for t in (q, k, v))
-        weights = torch.softmax(torch.matmul(q, k.transpose(-2, -1)) * (c // heads) ** -0.5, dim=-1)
-        weights = F.dropout(weights, mha.dropout, self.training)
-        out = torch.matmul(weights, v).transpose(1, 2).reshape(b, n, c)
-        return mha.out_proj(out)
+        return attend(self.self_attn, x, None, self.training)
 
     def forward(self, xb: torch.Tensor) -> torch.Tensor:
         attn = self.attention(xb)
@@ -86,10 +97,23 @@ class TrackingOrientedEncoderLayer(nn.Module):
 class TrackingOrientedLayer(nn.Module):
     """The paper's layer (used by dadiff-lite): maps (B, C, H, W) to aligned features of the same shape."""
 
-    def __init__(self, d_model: int, heads: int, ffn: int, reduction: int = 8) -> None:
+    def __init__(self, d_model: int, heads: int, ffn: int, reduction: int = 8, template: bool = False) -> None:
         super().__init__()
         self.row_embed, self.col_embed = position_tables(d_model)
         self.layer = TrackingOrientedEncoderLayer(d_model, heads, ffn, reduction)
+        if template:  # ours (`align_template`): the search side also reads the template, through a gate from 0
+            self.template_attn = nn.MultiheadAttention(d_model, heads, dropout=0.1, batch_first=True)
+            self.norm_template = nn.LayerNorm(d_model)
+            self.template_scale = nn.Parameter(torch.zeros(1, d_model, 1, 1))
+
+    def read_template(self, out: torch.Tensor, template: torch.Tensor) -> torch.Tensor:
+        """What the layer's search output `out` (B, C, H, W) takes from the template's aligned features
+        (B, C, h, w), gated: attention of the search positions over the template's (no position code on the
+        template's side, whose layout is not the search map's). The network adds it to the head's input."""
+        b, c, h, w = out.shape
+        keys = self.norm_template(template.flatten(2).transpose(1, 2))
+        read = attend(self.template_attn, out.flatten(2).transpose(1, 2), keys, self.training)
+        return self.template_scale * read.transpose(1, 2).reshape(b, c, h, w)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         b, c, h, w = x.shape

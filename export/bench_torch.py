@@ -20,7 +20,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from .checkpoint import load_checkpoint
-from .onnx_export import SearchGraph, TemplateGraph
+from .onnx_export import SearchGraph, TemplateGraph, search_args
 
 
 def torch_search_times(checkpoint: str, crops: str, steps: int | None, threads: int, repeats: int = 3) -> list[float]:
@@ -28,9 +28,8 @@ def torch_search_times(checkpoint: str, crops: str, steps: int | None, threads: 
     loaded = load_checkpoint(checkpoint, steps=steps)
     net = loaded.model.eval()
     data = np.load(crops)
-    levels = len(net.cfg.level_names)
     with torch.inference_mode():
-        kernels = TemplateGraph(net)(torch.from_numpy(data["z"]))[levels:]
+        kernels = search_args(net, TemplateGraph(net)(torch.from_numpy(data["z"])))
         search = SearchGraph(net)
         xs = torch.from_numpy(data["xs"])
         search(xs[:1], *kernels)

@@ -69,6 +69,7 @@ class ModelConfig:
     head_upsample: int = 1             # the head answers on a grid this many times finer (tracker.stride / it)
     antialias_blocks: tuple[int, ...] = ()  # Lite0 stride-2 blocks that blur before subsampling (ours)
     fine_skip: bool = False            # stride-8 block 4, space-to-depth, added to the neck through a gate (ours)
+    align_template: bool = False       # the search side's tracking-oriented layer also attends to the template (ours)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def to_dict(self) -> dict[str, Any]:
@@ -181,7 +182,7 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'ddim_start_t' is {cfg.ddim_start_t!r}; expected an integer >= 0 or none")
     if cfg.align not in ALIGNS:
         raise ValueError(f"'align' is {cfg.align!r}; expected one of {', '.join(ALIGNS)}")
-    for name in ("use_dadiff", "align_residual", "denoiser_attention", "fine_skip"):
+    for name in ("use_dadiff", "align_residual", "denoiser_attention", "fine_skip", "align_template"):
         if not isinstance(getattr(cfg, name), bool):
             raise ValueError(f"'{name}' is {getattr(cfg, name)!r}; expected true or false")
     levels = (cfg.level_names, cfg.backbone_channels)
@@ -192,6 +193,8 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'level_names' / 'backbone_channels' must hold integers (>= 0 / >= 1), got {levels}")
     if (2 * cfg.denoiser_ch) % cfg.denoiser_groups or cfg.denoiser_ch % cfg.denoiser_groups:
         raise ValueError(f"'denoiser_groups' {cfg.denoiser_groups} does not divide 'denoiser_ch' {cfg.denoiser_ch}")
+    if cfg.align_template and cfg.align != "paper":
+        raise ValueError(f"'align_template' needs align = \"paper\" (the layer that attends), got {cfg.align!r}")
     if cfg.align != "none" and cfg.channels % cfg.align_heads:
         raise ValueError(f"'align_heads' {cfg.align_heads} does not divide 'channels' {cfg.channels}")
     if not _is_int(cfg.head_search_padding) or cfg.head_search_padding < 0:

@@ -65,7 +65,8 @@ class DaDiffNet(nn.Module):
             self.register_buffer("e_zf", e_zf)
             self.register_buffer("e_xf", e_xf)
             if cfg.align == "paper":
-                self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn)
+                self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn,
+                                                         template=cfg.align_template)
             elif cfg.align == "none":
                 self.align_track = nn.Identity()
             else:
@@ -97,7 +98,10 @@ class DaDiffNet(nn.Module):
             return [[s[i * n:(i + 1) * n] for s in states] for i in range(len(neck))]
         return [self.sampler(self.diffusion, f, noise.expand(n, -1, -1, -1)) for f in neck]
 
-    def branch(self, img: torch.Tensor, noise: torch.Tensor, template: bool) -> BranchOutput:
+    def branch(self, img: torch.Tensor, noise: torch.Tensor, template: bool,
+               template_features: list[torch.Tensor] | None = None) -> BranchOutput:
+        """`template_features`: the template's aligned features per level, which the search side's layer reads
+        when the model is built with `align_template` (ignored otherwise)."""
         fine, feats = self.trunk(img)
         neck = self.neck(feats, template)
         if fine is not None:
@@ -105,18 +109,25 @@ class DaDiffNet(nn.Module):
         if not self.cfg.use_dadiff:
             return BranchOutput(neck, [[f] for f in neck], neck)
         states = self.diffuse(neck, noise)
-        aligned = [self.align_track(s[-1]) for s in states]
+        layer_out = [self.align_track(s[-1]) for s in states]
+        aligned = layer_out
         if self.cfg.align_residual:
-            aligned = [n + self.align_scale * a for n, a in zip(neck, aligned, strict=True)]
+            aligned = [n + self.align_scale * a for n, a in zip(neck, layer_out, strict=True)]
+        if self.cfg.align_template and template_features is not None:
+            aligned = [f + self.align_track.read_template(a, z)
+                       for f, a, z in zip(aligned, layer_out, template_features, strict=True)]
         return BranchOutput(neck, states, aligned)
 
     def template_branch(self, z: torch.Tensor) -> BranchOutput:
         """The branch on a template crop: its own start noise, the neck's centre crop."""
         return self.branch(z, self.e_zf, template=True)
 
-    def search_branch(self, x: torch.Tensor) -> BranchOutput:
-        """The branch on a search crop: its own start noise, the whole map."""
-        return self.branch(x, self.e_xf, template=False)
+    def search_branch(self, x: torch.Tensor, template_features: list[torch.Tensor] | None = None) -> BranchOutput:
+        """The branch on a search crop: its own start noise, the whole map (and the template's aligned
+        features, which a model with `align_template` needs)."""
+        if self.cfg.use_dadiff and self.cfg.align_template and template_features is None:
+            raise ValueError("this model's search side reads the template: pass its aligned features")
+        return self.branch(x, self.e_xf, template=False, template_features=template_features)
 
     def template(self, z: torch.Tensor) -> list[torch.Tensor]:
         """Aligned template features per level (what the head receives)."""
@@ -127,15 +138,20 @@ class DaDiffNet(nn.Module):
         kcls, kloc = self.head.kernels(zf)
         return zf, kcls, kloc
 
-    def track(self, x: torch.Tensor, kcls: list[torch.Tensor],
-              kloc: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        xf = self.search_branch(x).aligned
+    def reads_template(self) -> bool:
+        """Whether the search side takes the template's aligned features besides the head's kernels."""
+        return self.cfg.use_dadiff and self.cfg.align_template
+
+    def track(self, x: torch.Tensor, kcls: list[torch.Tensor], kloc: list[torch.Tensor],
+              zf: list[torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        xf = self.search_branch(x, zf).aligned
         return self.head(xf, kcls, kloc)
 
     def forward(self, z: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Template + search in one call (training and tests)."""
-        kcls, kloc = self.head.kernels(self.template(z))
-        return self.track(x, kcls, kloc)
+        zf = self.template(z)
+        kcls, kloc = self.head.kernels(zf)
+        return self.track(x, kcls, kloc, zf)
 
 
 def build_model(cfg: ModelConfig, pretrained_backbone: bool = False) -> DaDiffNet:

@@ -56,6 +56,9 @@ class TemplateGraph(nn.Module):
 
 
 class SearchGraph(nn.Module):
+    """x, then the template graph's outputs the search side reads, in `io_names` order: kcls*, kloc*, and zf*
+    for a model whose layer attends to the template."""
+
     def __init__(self, net: DaDiffNet) -> None:
         super().__init__()
         self.net = net
@@ -63,19 +66,28 @@ class SearchGraph(nn.Module):
         self.eval()
 
     def forward(self, x: torch.Tensor, *kernels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net.track(x, list(kernels[:self.levels]), list(kernels[self.levels:]))
+        n = self.levels
+        zf = list(kernels[2 * n:3 * n]) if self.net.reads_template() else None
+        return self.net.track(x, list(kernels[:n]), list(kernels[n:2 * n]), zf)
 
 
-def io_names(levels: int) -> tuple[list[str], list[str]]:
-    """(template outputs, search kernel inputs)."""
+def io_names(levels: int, reads_template: bool = False) -> tuple[list[str], list[str]]:
+    """(template outputs, the search graph's inputs after x)."""
+    features = [f"zf{i}" for i in range(levels)]
     kernels = [f"kcls{i}" for i in range(levels)] + [f"kloc{i}" for i in range(levels)]
-    return [f"zf{i}" for i in range(levels)] + kernels, kernels
+    return features + kernels, kernels + (features if reads_template else [])
+
+
+def search_args(net: DaDiffNet, template_values: tuple[torch.Tensor, ...]) -> list[torch.Tensor]:
+    """The search graph's inputs after x, from the template graph's outputs (in `io_names` order)."""
+    n = len(net.cfg.level_names)
+    return [*template_values[n:], *(template_values[:n] if net.reads_template() else [])]
 
 
 def model_metadata(loaded: LoadedCheckpoint, name: str, opset: int) -> dict[str, str]:
     cfg, tr = loaded.config, loaded.config.tracker
     hp = tr.hp_presets[tr.default_preset]
-    template_outputs, kernel_inputs = io_names(len(cfg.level_names))
+    template_outputs, kernel_inputs = io_names(len(cfg.level_names), loaded.model.reads_template())
     mean = _module_constant(cfg.backbone, "PIXEL_MEAN", [0.0] * 3)
     std = _module_constant(cfg.backbone, "PIXEL_STD", [1.0] * 3)
     sampler = loaded.model.sampler
@@ -188,7 +200,8 @@ def check_parity(net: DaDiffNet, folder: Path) -> dict[str, tuple[float, float]]
     o_out = tmpl.run(None, {"z": z.numpy()})
     parity = {n: parity_error(a, b.numpy()) for n, a, b in zip(names, o_out, t_out, strict=True)}
     search = ort_session(folder / SEARCH_FILE)
-    feeds = {"x": x.numpy()} | {n: v for n, v in zip(names, o_out, strict=True) if n.startswith("k")}
+    outputs = dict(zip(names, o_out, strict=True))
+    feeds = {"x": x.numpy()} | {i.name: outputs[i.name] for i in search.get_inputs()[1:]}
     kernels = [torch.from_numpy(feeds[i.name]) for i in search.get_inputs()[1:]]
     with torch.no_grad():
         t_cls, t_loc = SearchGraph(net)(x, *kernels)
@@ -252,11 +265,11 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
     graphs_net = folded_for_export(net)
     try:
         meta = model_metadata(loaded, name, opset)
-        template_outputs, kernel_inputs = io_names(len(loaded.config.level_names))
+        template_outputs, kernel_inputs = io_names(len(loaded.config.level_names), net.reads_template())
         z, x = parity_inputs(loaded.config)
         with torch.no_grad():
             template_values = TemplateGraph(net)(z)
-        kernels = template_values[len(loaded.config.level_names):]
+        kernels = search_args(net, template_values)
         gflop_search = count_gflop(SearchGraph(net), x, *kernels)
         gflop_template = count_gflop(TemplateGraph(net), z)
         meta |= {"gflop_search": f"{gflop_search:.4f}", "gflop_template": f"{gflop_template:.4f}"}

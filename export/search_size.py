@@ -36,8 +36,9 @@ def _feature_side(net: nn.Module, size: int) -> int:
 def _score_side(net: nn.Module, exemplar: int, size: int) -> int:
     """Side of the score map the network gives on a size x size search crop."""
     with torch.no_grad():
-        kcls, kloc = net.head.kernels(net.template(torch.zeros(1, 3, exemplar, exemplar)))
-        cls, _ = net.track(torch.zeros(1, 3, size, size), kcls, kloc)
+        zf = net.template(torch.zeros(1, 3, exemplar, exemplar))
+        kcls, kloc = net.head.kernels(zf)
+        cls, _ = net.track(torch.zeros(1, 3, size, size), kcls, kloc, zf)
     return cls.shape[-1]
 
 

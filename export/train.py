@@ -47,6 +47,7 @@ from .weight_average import WeightAverage
 
 DAY, NIGHT = 0.0, 1.0
 DADIFF_BLOCK = ("diffusion.", "align_track.", "align_scale")  # parameter names of the DaDiff block
+TEMPLATE_READ = ("align_track.template_", "align_track.norm_template.")  # the block's reading of the template
 
 
 @dataclass
@@ -65,6 +66,7 @@ class TrainConfig:
     lr: float = 0.0015                    # DaDiff base lr (paper)
     backbone_lr_mult: float = 0.1
     dadiff_lr_mult: float = 1.0           # the DaDiff block's factor (denoiser, tracking-oriented layer, gate)
+    template_lr_mult: float = 1.0         # the template reading's factor (`align_template`: its attention and gate)
     warmup_steps: int = 50
     weight_decay: float = 1e-4
     freeze_backbone_blocks: int = 5       # EfficientNet-Lite0 blocks 0..N-1 stay ImageNet
@@ -197,16 +199,17 @@ def freeze_all_but(net: DaDiffNet, prefixes: Sequence[str]) -> list[nn.Module]:
 
 
 def param_groups(net: DaDiffNet, cfg: TrainConfig) -> list[dict[str, Any]]:
-    """Backbone, the rest, and the DaDiff block as a third group only when its factor differs (so that the
-    optimiser states of earlier runs, with two groups, still resume)."""
+    """Backbone, the rest, then the DaDiff block and its template reading as groups of their own only when
+    their factors differ (so that the optimiser states of earlier runs, with two groups, still resume)."""
     backbone = [p for p in net.backbone.parameters() if p.requires_grad]
-    own_block = cfg.dadiff_lr_mult != 1.0
-    skip = ("backbone.", *DADIFF_BLOCK) if own_block else ("backbone.",)
-    rest = [p for n, p in net.named_parameters() if p.requires_grad and not n.startswith(skip)]
-    groups = [{"params": backbone, "lr_mult": cfg.backbone_lr_mult}, {"params": rest, "lr_mult": 1.0}]
-    if own_block:
-        block = [p for n, p in net.named_parameters() if p.requires_grad and n.startswith(DADIFF_BLOCK)]
-        groups.append({"params": block, "lr_mult": cfg.dadiff_lr_mult})
+    own = [(prefixes, mult) for prefixes, mult in ((TEMPLATE_READ, cfg.template_lr_mult),
+                                                    (DADIFF_BLOCK, cfg.dadiff_lr_mult)) if mult != 1.0]
+    named = [(n, p) for n, p in net.named_parameters() if p.requires_grad and not n.startswith("backbone.")]
+    groups = [{"params": backbone, "lr_mult": cfg.backbone_lr_mult}]
+    for prefixes, mult in own:  # the template reading first: its names also start with the block's
+        groups.append({"params": [p for n, p in named if n.startswith(prefixes)], "lr_mult": mult})
+        named = [(n, p) for n, p in named if not n.startswith(prefixes)]
+    groups.insert(1, {"params": [p for _, p in named], "lr_mult": 1.0})
     return groups
 
 
@@ -426,7 +429,8 @@ class TrainForward(nn.Module):
     def forward(self, z: torch.Tensor, x: torch.Tensor, label: torch.Tensor, loc_target: torch.Tensor, paired: bool,
                 z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
         net = self.net
-        zb, xb = net.template_branch(z), net.search_branch(x)
+        zb = net.template_branch(z)
+        xb = net.search_branch(x, zb.aligned)
         cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
         zero = cls.sum() * 0
         out = {"cls": ban_cls_loss(cls, label), "loc": self.box_loss(loc, loc_target, label), "align": zero,
@@ -436,7 +440,8 @@ class TrainForward(nn.Module):
                "night_cls_map": None, "night_loc_map": None}
         if z_night is None:
             return out
-        zn, xn = net.template_branch(z_night), net.search_branch(x_night)
+        zn = net.template_branch(z_night)
+        xn = net.search_branch(x_night, zn.aligned)
         out["night_states"] = [s for b in (zn, xn) for level in b.states for s in level]
         if paired:  # rendered from the day frames: the day boxes hold
             cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))

@@ -36,6 +36,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("lr", "0.0015", "base learning rate (> 0)"),
     ("backbone_lr_mult", "0.1", "backbone learning-rate factor"),
     ("dadiff_lr_mult", "1.0", "learning-rate factor of the DaDiff block (denoiser, aligned layer, gate)"),
+    ("template_lr_mult", "1.0", "learning-rate factor of the block's template reading (align_template)"),
     ("warmup_steps", "50", "linear warm-up steps"),
     ("weight_decay", "0.0001", "weight decay"),
     ("freeze_backbone_blocks", "5", "EfficientNet-Lite0 blocks 0..N-1 kept at ImageNet"),
