@@ -70,6 +70,7 @@ class ModelConfig:
     antialias_blocks: tuple[int, ...] = ()  # Lite0 stride-2 blocks that blur before subsampling (ours)
     fine_skip: bool = False            # stride-8 block 4, space-to-depth, added to the neck through a gate (ours)
     align_template: bool = False       # the search side's tracking-oriented layer also attends to the template (ours)
+    align_template_gate: float = 0.0   # its gate where no state sets it (0: a trained block keeps its output)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def to_dict(self) -> dict[str, Any]:
@@ -193,6 +194,8 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'level_names' / 'backbone_channels' must hold integers (>= 0 / >= 1), got {levels}")
     if (2 * cfg.denoiser_ch) % cfg.denoiser_groups or cfg.denoiser_ch % cfg.denoiser_groups:
         raise ValueError(f"'denoiser_groups' {cfg.denoiser_groups} does not divide 'denoiser_ch' {cfg.denoiser_ch}")
+    if not _is_number(cfg.align_template_gate):
+        raise ValueError(f"'align_template_gate' is {cfg.align_template_gate!r}; expected a number")
     if cfg.align_template and cfg.align != "paper":
         raise ValueError(f"'align_template' needs align = \"paper\" (the layer that attends), got {cfg.align!r}")
     if cfg.align != "none" and cfg.channels % cfg.align_heads:

@@ -66,7 +66,8 @@ class DaDiffNet(nn.Module):
             self.register_buffer("e_xf", e_xf)
             if cfg.align == "paper":
                 self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn,
-                                                         template=cfg.align_template)
+                                                         template=cfg.align_template,
+                                                         template_gate=cfg.align_template_gate)
             elif cfg.align == "none":
                 self.align_track = nn.Identity()
             else:

@@ -67,6 +67,10 @@ def test_the_option_is_checked():
         validate_config(with_overrides(mobile_config(), READS | {"align": "none"}))
     with pytest.raises(ValueError, match="'align_template' is 1; expected true or false"):
         validate_config(with_overrides(mobile_config(), {"align_template": 1}))
+    with pytest.raises(ValueError, match="'align_template_gate' is 'open'; expected a number"):
+        validate_config(with_overrides(mobile_config(), READS | {"align_template_gate": "open"}))
+    opened = build_model(with_overrides(mobile_config(), READS | {"align_template_gate": 0.1}))
+    assert torch.allclose(opened.align_track.template_scale.detach(), torch.tensor(0.1))
 
 
 def test_the_export_feeds_the_template_features_to_the_search_graph(tmp_path):
