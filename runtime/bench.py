@@ -221,7 +221,9 @@ class BenchLane:
             run.seconds += time.perf_counter() - started
 
     def finish(self) -> BenchRun:
-        self.run.peak_rss = peak_rss_bytes()
+        # Linux updates ru_maxrss from per-thread counters it syncs now and then, so /proc can read a little
+        # above it: the peak is never below a sample taken
+        self.run.peak_rss = max([peak_rss_bytes(), *(b for _, b in self.run.rss)])
         return self.run
 
 
