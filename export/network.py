@@ -126,7 +126,7 @@ class DaDiffNet(nn.Module):
     def search_branch(self, x: torch.Tensor, template_features: list[torch.Tensor] | None = None) -> BranchOutput:
         """The branch on a search crop: its own start noise, the whole map (and the template's aligned
         features, which a model with `align_template` needs)."""
-        if self.cfg.use_dadiff and self.cfg.align_template and template_features is None:
+        if self.reads_template() and template_features is None:
             raise ValueError("this model's search side reads the template: pass its aligned features")
         return self.branch(x, self.e_xf, template=False, template_features=template_features)
 
