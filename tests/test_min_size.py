@@ -9,13 +9,12 @@ torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-from runtime_models import write_corr_model  # noqa: E402
-
 from dadiff.export.checkpoint import save_checkpoint  # noqa: E402
 from dadiff.export.cli import main  # noqa: E402
 from dadiff.export.config import mobile_config  # noqa: E402
 from dadiff.export.network import build_model  # noqa: E402
 from dadiff.runtime.tracker import Tracker  # noqa: E402
+from runtime_models import write_corr_model  # noqa: E402
 
 
 @pytest.fixture(scope="module")
