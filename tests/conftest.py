@@ -52,6 +52,20 @@ def lite_checkpoint(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def mobile_checkpoint(tmp_path_factory) -> Path:
+    """A freshly initialised dadiff-mobile checkpoint (no pretrained backbone) in our format."""
+    torch = pytest.importorskip("torch")
+    from dadiff.export.checkpoint import save_checkpoint
+    from dadiff.export.config import mobile_config
+    from dadiff.export.network import build_model
+
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("ckpt") / "mobile.pt"
+    save_checkpoint(path, build_model(mobile_config()))
+    return path
+
+
+@pytest.fixture(scope="session")
 def lite_model_dir(tmp_path_factory, lite_checkpoint) -> Path:
     """The lite checkpoint exported to a model folder (template.onnx + search.onnx)."""
     from dadiff.export.checkpoint import load_checkpoint

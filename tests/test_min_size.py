@@ -9,20 +9,9 @@ torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-from dadiff.export.checkpoint import save_checkpoint  # noqa: E402
 from dadiff.export.cli import main  # noqa: E402
-from dadiff.export.config import mobile_config  # noqa: E402
-from dadiff.export.network import build_model  # noqa: E402
 from dadiff.runtime.tracker import Tracker  # noqa: E402
 from runtime_models import write_corr_model  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def mobile_checkpoint(tmp_path_factory):
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("ckpt") / "mobile.pt"
-    save_checkpoint(path, build_model(mobile_config()))
-    return path
 
 
 def _graph_and_meta(path) -> tuple[bytes, dict[str, str]]:

@@ -10,19 +10,9 @@ import pytest
 torch = pytest.importorskip("torch")
 ort = pytest.importorskip("onnxruntime")
 
-from dadiff.export.checkpoint import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
+from dadiff.export.checkpoint import CheckpointError, load_checkpoint  # noqa: E402
 from dadiff.export.cli import main  # noqa: E402
-from dadiff.export.config import mobile_config  # noqa: E402
-from dadiff.export.network import build_model  # noqa: E402
 from dadiff.export.search_size import search_sizes, with_search_size  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def mobile_checkpoint(tmp_path_factory):
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("ckpt") / "mobile.pt"
-    save_checkpoint(path, build_model(mobile_config()))
-    return path
 
 
 def test_sizes_shrink_by_twice_the_stride():
