@@ -57,6 +57,7 @@ def _tolerance(text: str) -> float:
 
 
 def _box_side(text: str) -> float:
+    """argparse type: a finite box side of at least one pixel (the tracker divides by it)."""
     try:
         value = float(text)
     except ValueError:
@@ -295,7 +296,7 @@ def _with_min_size(loaded: LoadedCheckpoint, side: float) -> LoadedCheckpoint:
     """`loaded` with the runtime's smallest box side set to `side` px (metadata `min_size`).
 
     The tracker floors the box at it and sizes both crops from the floored box, so below the released 10 px
-    a target of 6-9 px is cut at the magnification the network was trained on instead of a smaller one.
+    a target of 6-9 px is cut nearer the magnification the network was trained on instead of a smaller one.
     """
     new_cfg = replace(loaded.config, tracker=replace(loaded.config.tracker, min_size=side))
     loaded.model.cfg = new_cfg
