@@ -45,26 +45,19 @@ class UserError(Exception):
 PROG = "dadiff-export"
 
 
-def _tolerance(text: str) -> float:
-    """argparse type: a finite tolerance >= 0 (nan would switch the parity gate off, a negative one fail it late)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
+def _finite(low: float) -> Any:
+    """argparse type: a finite number >= `low`. Tolerance >= 0: nan would switch the parity gate off, a negative
+    one fail it late; box side >= 1: the tracker divides by it."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value) or value < low:
+            raise argparse.ArgumentTypeError(f"expected a finite number >= {low:g}, got {text!r}")
+        return value
 
-
-def _box_side(text: str) -> float:
-    """argparse type: a finite box side of at least one pixel (the tracker divides by it)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 1):
-        raise argparse.ArgumentTypeError(f"expected a number of pixels >= 1, got {text!r}")
-    return value
+    return parse
 
 
 def _count(low: int) -> Any:
@@ -92,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search-size", type=_count(1), metavar="PX",
                    help="search crop side the graphs take, the trained size or smaller by a multiple of twice the "
                         "stride (dadiff-mobile: 255 trained, 223, 191, 159; default: the trained size)")
-    p.add_argument("--min-size", type=_box_side, metavar="PX",
+    p.add_argument("--min-size", type=_finite(1), metavar="PX",
                    help="smallest box side the runtime keeps, in frame pixels; it also sets how far the crops "
                         "magnify a tiny target (metadata min_size; default: the checkpoint's, 10 as released)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
@@ -101,7 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", metavar="NAME",
                    help="hyper-parameter preset the runtime uses by default, one of the checkpoint's "
                         f"(the released ones: {', '.join(sorted(HP_PRESETS))}; default: the checkpoint's)")
-    p.add_argument("--tolerance", type=_tolerance, default=PARITY_TOLERANCE,
+    p.add_argument("--tolerance", type=_finite(0), default=PARITY_TOLERANCE,
                    help=f"max-abs torch/onnxruntime difference allowed, >= 0 (default {PARITY_TOLERANCE:g})")
     _add_quantize_options(p)
     return p
