@@ -20,7 +20,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from .checkpoint import load_checkpoint
-from .onnx_export import SearchGraph, TemplateGraph, search_args
+from .onnx_export import GraphLayout, SearchGraph, TemplateGraph
 
 
 def torch_search_times(checkpoint: str, crops: str, steps: int | None, threads: int, repeats: int = 3) -> list[float]:
@@ -29,7 +29,7 @@ def torch_search_times(checkpoint: str, crops: str, steps: int | None, threads: 
     net = loaded.model.eval()
     data = np.load(crops)
     with torch.inference_mode():
-        kernels = search_args(net, TemplateGraph(net)(torch.from_numpy(data["z"])))
+        kernels = GraphLayout.of(net).search_args(TemplateGraph(net)(torch.from_numpy(data["z"])))
         search = SearchGraph(net)
         xs = torch.from_numpy(data["xs"])
         search(xs[:1], *kernels)

@@ -14,6 +14,7 @@ import shutil
 import tempfile
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -55,39 +56,61 @@ class TemplateGraph(nn.Module):
         return (*zf, *kcls, *kloc)
 
 
+@dataclass(frozen=True)
+class GraphLayout:
+    """The one place the tensors between the two graphs are ordered: the template graph returns zf*, kcls*,
+    kloc* (one per level); the search graph takes x, then kcls*, kloc*, and zf* for a model whose layer
+    attends to the template. The names go into the metadata, which the runtime feeds by."""
+
+    levels: int
+    reads_template: bool = False
+
+    @classmethod
+    def of(cls, net: DaDiffNet) -> GraphLayout:
+        return cls(len(net.cfg.level_names), net.reads_template())
+
+    def template_outputs(self) -> list[str]:
+        return self._features() + self._kernels()
+
+    def search_inputs(self) -> list[str]:
+        """The search graph's inputs after x."""
+        return self._kernels() + (self._features() if self.reads_template else [])
+
+    def search_args(self, template_values: Sequence[torch.Tensor]) -> list[torch.Tensor]:
+        """The template graph's outputs, reordered as the search graph's inputs after x."""
+        n = self.levels
+        return [*template_values[n:], *(template_values[:n] if self.reads_template else [])]
+
+    def split_search_args(self, args: Sequence[torch.Tensor]
+                          ) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor] | None]:
+        """(kcls, kloc, zf or None) from the search graph's inputs after x."""
+        n = self.levels
+        return list(args[:n]), list(args[n:2 * n]), list(args[2 * n:3 * n]) if self.reads_template else None
+
+    def _features(self) -> list[str]:
+        return [f"zf{i}" for i in range(self.levels)]
+
+    def _kernels(self) -> list[str]:
+        return [f"kcls{i}" for i in range(self.levels)] + [f"kloc{i}" for i in range(self.levels)]
+
+
 class SearchGraph(nn.Module):
-    """x, then the template graph's outputs the search side reads, in `io_names` order: kcls*, kloc*, and zf*
-    for a model whose layer attends to the template."""
+    """x, then the template graph's outputs the search side reads, in `GraphLayout` order."""
 
     def __init__(self, net: DaDiffNet) -> None:
         super().__init__()
         self.net = net
-        self.levels = len(net.cfg.level_names)
+        self.layout = GraphLayout.of(net)
         self.eval()
 
     def forward(self, x: torch.Tensor, *kernels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        n = self.levels
-        zf = list(kernels[2 * n:3 * n]) if self.net.reads_template() else None
-        return self.net.track(x, list(kernels[:n]), list(kernels[n:2 * n]), zf)
-
-
-def io_names(levels: int, reads_template: bool = False) -> tuple[list[str], list[str]]:
-    """(template outputs, the search graph's inputs after x)."""
-    features = [f"zf{i}" for i in range(levels)]
-    kernels = [f"kcls{i}" for i in range(levels)] + [f"kloc{i}" for i in range(levels)]
-    return features + kernels, kernels + (features if reads_template else [])
-
-
-def search_args(net: DaDiffNet, template_values: tuple[torch.Tensor, ...]) -> list[torch.Tensor]:
-    """The search graph's inputs after x, from the template graph's outputs (in `io_names` order)."""
-    n = len(net.cfg.level_names)
-    return [*template_values[n:], *(template_values[:n] if net.reads_template() else [])]
+        return self.net.track(x, *self.layout.split_search_args(kernels))
 
 
 def model_metadata(loaded: LoadedCheckpoint, name: str, opset: int) -> dict[str, str]:
     cfg, tr = loaded.config, loaded.config.tracker
     hp = tr.hp_presets[tr.default_preset]
-    template_outputs, kernel_inputs = io_names(len(cfg.level_names), loaded.model.reads_template())
+    layout = GraphLayout.of(loaded.model)
     mean = _module_constant(cfg.backbone, "PIXEL_MEAN", [0.0] * 3)
     std = _module_constant(cfg.backbone, "PIXEL_STD", [1.0] * 3)
     sampler = loaded.model.sampler
@@ -103,7 +126,8 @@ def model_metadata(loaded: LoadedCheckpoint, name: str, opset: int) -> dict[str,
         "channel_order": "BGR", "pixel_range": "0-255", "pixel_mean": json.dumps([float(v) for v in mean]),
         "pixel_std": json.dumps([float(v) for v in std]), "ddim_steps": str(cfg.ddim_steps),
         "ddim_timesteps": json.dumps(sampler.timesteps), "ddim_start_t": str(sampler.start_t),
-        "template_outputs": json.dumps(template_outputs), "search_inputs": json.dumps(["x", *kernel_inputs]),
+        "template_outputs": json.dumps(layout.template_outputs()),
+        "search_inputs": json.dumps(["x", *layout.search_inputs()]),
     }
     return meta
 
@@ -265,17 +289,17 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
     graphs_net = folded_for_export(net)
     try:
         meta = model_metadata(loaded, name, opset)
-        template_outputs, kernel_inputs = io_names(len(loaded.config.level_names), net.reads_template())
+        layout = GraphLayout.of(net)
         z, x = parity_inputs(loaded.config)
         with torch.no_grad():
             template_values = TemplateGraph(net)(z)
-        kernels = search_args(net, template_values)
+        kernels = layout.search_args(template_values)
         gflop_search = count_gflop(SearchGraph(net), x, *kernels)
         gflop_template = count_gflop(TemplateGraph(net), z)
         meta |= {"gflop_search": f"{gflop_search:.4f}", "gflop_template": f"{gflop_template:.4f}"}
-        _export_graph(TemplateGraph(graphs_net), (z,), staging / TEMPLATE_FILE, ["z"], template_outputs, opset,
+        _export_graph(TemplateGraph(graphs_net), (z,), staging / TEMPLATE_FILE, ["z"], layout.template_outputs(), opset,
                       meta | {"graph": "template"})
-        _export_graph(SearchGraph(graphs_net), (x, *kernels), staging / SEARCH_FILE, ["x", *kernel_inputs],
+        _export_graph(SearchGraph(graphs_net), (x, *kernels), staging / SEARCH_FILE, ["x", *layout.search_inputs()],
                       ["cls", "loc"], opset, meta | {"graph": "search"})
         found = random_ops(staging / TEMPLATE_FILE) + random_ops(staging / SEARCH_FILE)
         if found:
