@@ -18,6 +18,7 @@ import numpy as np
 
 from .sources import Frame
 
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")  # containers that take the mp4v stream
 LOG_FIELDS = ("frame", "timestamp", "x", "y", "w", "h", "score", "state")
 STATE_COLOURS = {
     "tracking": (0, 200, 0),
@@ -40,14 +41,25 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        return path.expanduser().resolve().is_relative_to(folder.resolve())
+    except OSError:
+        return False
+
+
 def check_distinct(video: str | None, outputs: dict[str, Path | None]) -> None:
-    """OutputError when an output names the input video or another output: opening it would truncate it
-    (`--save-video same.mp4` used to replace the input with a 3-frame file)."""
+    """OutputError when an output names the input video, lies inside the input folder, or names another
+    output: opening it would truncate input (`--save-video same.mp4` used to replace the input with a 3-frame
+    file, `--save-video seq/img/%04d.jpg` its frames)."""
     named = [(option, Path(path)) for option, path in outputs.items() if path is not None]
     spec = str(video or "")
     is_file = bool(spec) and "://" not in spec and not spec.isdigit() and not spec.startswith("/dev/")
     source = Path(spec).expanduser() if is_file else None
     for i, (option, path) in enumerate(named):
+        if source is not None and source.is_dir() and _inside(path, source):
+            raise OutputError(f"{path}: {option} lies inside the input folder {source}; choose a path outside it "
+                              "(nothing written)")
         if source is not None and _same_file(path, source):
             raise OutputError(f"{path}: {option} names the input video; choose another file (nothing written)")
         for other, earlier in named[:i]:
@@ -155,6 +167,8 @@ class VideoSink:
     """Annotated mp4 (fourcc mp4v) at the source frame rate; opened on the first frame to learn its size."""
 
     def __init__(self, path: Path, fps: float | None) -> None:
+        if path.suffix.lower() not in VIDEO_SUFFIXES:  # another suffix picks another muxer: `%04d.jpg` writes frames
+            raise OutputError(f"{path}: --save-video must end in {', '.join(VIDEO_SUFFIXES)}")
         if not path.parent.is_dir():
             raise OutputError(f"{path}: folder {path.parent} does not exist")
         self.path, self.fps = path, fps or 30.0

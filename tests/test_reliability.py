@@ -72,6 +72,36 @@ def test_save_video_over_the_input_is_refused_and_the_input_kept(media, tmp_path
     assert same.read_bytes() == before and not log.exists()
 
 
+def _image_folder(root: Path, frames: int = 6) -> Path:
+    (root / "img").mkdir(parents=True)
+    for i in range(frames):
+        image = np.full((120, 160, 3), 30, np.uint8)
+        cv2.rectangle(image, (40 + i, 40), (60 + i, 55), (220, 220, 220), -1)
+        cv2.imwrite(str(root / "img" / f"{i + 1:04d}.jpg"), image)
+    (root / "groundtruth_rect.txt").write_text("40,40,21,16\n" * frames)
+    return root
+
+
+def test_outputs_inside_the_input_folder_are_refused_and_its_frames_kept(media, tmp_path, capsys) -> None:
+    seq = _image_folder(tmp_path / "seq")
+    before = {f: f.read_bytes() for f in (seq / "img").iterdir()}
+    argv = ["--video", str(seq), "--model", str(media["model"]), "--max-frames", "4"]
+    for option, path in (("--save-video", seq / "img" / "out.mp4"), ("--output", seq / "track.csv")):
+        assert cli.main([*argv, option, str(path)]) == 2  # was: exit 0, written among the frames
+        assert "lies inside the input folder" in _one_error(capsys)
+        assert not path.exists()
+    assert {f: f.read_bytes() for f in (seq / "img").iterdir()} == before
+
+
+def test_save_video_must_be_a_video_file(media, tmp_path, capsys) -> None:
+    """`--save-video frames/%04d.jpg` went to OpenCV's image-sequence writer and replaced same-named frames."""
+    argv = ["--video", str(media["video"]), "--init", BOX, "--model", str(media["model"]), "--max-frames", "3"]
+    (tmp_path / "frames").mkdir()
+    assert cli.main([*argv, "--save-video", str(tmp_path / "frames" / "%04d.jpg")]) == 2
+    assert "--save-video must end in .mp4" in _one_error(capsys)
+    assert not any((tmp_path / "frames").iterdir())
+
+
 def test_service_mode_refuses_to_overwrite_its_input_too(media, tmp_path, capsys) -> None:
     same = tmp_path / "same.mp4"
     same.write_bytes(media["video"].read_bytes())
