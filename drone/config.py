@@ -73,6 +73,8 @@ def config_defaults(parser: argparse.ArgumentParser, path: Path) -> dict[str, An
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a text file (TOML must be UTF-8)") from None
+    except RecursionError:  # tomllib recurses once per nesting level
+        raise ConfigError(f"{path}: not valid TOML (nested too deeply)") from None
     options = _options(parser)
     values: dict[str, Any] = {}
     for key, value in table.items():
@@ -92,7 +94,8 @@ def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None = Non
     Config problems go through `parser.error`, so they are reported like any other usage error.
     """
     args = list(sys.argv[1:] if argv is None else argv)
-    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False, exit_on_error=False)
+    # abbreviations as the real parser takes them: `--conf FILE` was read there as --config, here not at all
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=parser.allow_abbrev, exit_on_error=False)
     pre.add_argument("--config", type=Path)
     try:
         known, _ = pre.parse_known_args(args)

@@ -96,7 +96,7 @@ LOST_DEFAULTS = {k: getattr(Params(0.0, 0.0, 0.0), k) for k in LOST_KEYS}
 # region grown by 1e308 overflowed the crop (an OverflowError instead of a one-line error).
 _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "lr": (0.0, 1.0),
-    "penalty_k": (0.0, None),
+    "penalty_k": (0.0, 100.0),  # released 0.04-0.2; exp(-k·change) underflows to 0 everywhere far above
     "window_influence": (0.0, 1.0),
     "uncertain_score": (0.0, 1.0),
     "found_score": (0.0, 1.0),
@@ -137,6 +137,12 @@ def _meta_number(meta: Mapping[str, str], key: str, source: str, integer: bool =
     return value
 
 
+# Far past any model's values (released: 127 / 255 px crops, context 0.5, floor 10 px) and far below the sizes
+# that overflowed the crop arithmetic (a 1e308 floor or context made every window infinite).
+_GEOMETRY_LIMITS = {"exemplar_size": 4096, "instance_size": 4096, "score_size": 4096, "context_amount": 10.0,
+                    "min_size": 1000.0}
+
+
 def parse_geometry(meta: Mapping[str, str], source: str) -> Geometry:
     """Read and sanity-check the geometry keys; `source` names the file in error messages."""
     if "dadiff_format" not in meta:
@@ -157,6 +163,13 @@ def parse_geometry(meta: Mapping[str, str], source: str) -> Geometry:
     for key in ("context_amount", "min_size"):
         if values[key] < 0:
             raise ModelError(f"{source}: metadata key '{key}' must not be negative, got {meta[key]!r}")
+    for key, most in _GEOMETRY_LIMITS.items():
+        if values[key] > most:
+            raise ModelError(f"{source}: metadata key '{key}' is {meta[key]!r}, expected at most {most:g}")
+    for key in ("stride", "point_origin"):  # a grid larger than its own search crop cannot be this model's
+        if abs(values[key]) > values["instance_size"]:
+            raise ModelError(f"{source}: metadata key '{key}' is {meta[key]!r}, larger than the "
+                             f"{values['instance_size']} px search crop")
     order = str(meta.get("channel_order", "BGR")).strip().upper()
     if order not in ("BGR", "RGB"):
         raise ModelError(
@@ -179,6 +192,8 @@ def presets(meta: Mapping[str, str], source: str) -> dict[str, dict[str, float]]
         table = json.loads(raw)
     except json.JSONDecodeError as exc:
         raise ModelError(f"{source}: metadata key 'hp_presets' is not valid JSON ({exc.msg})") from None
+    except RecursionError:  # json recurses once per nesting level
+        raise ModelError(f"{source}: metadata key 'hp_presets' is not valid JSON (nested too deeply)") from None
     if not isinstance(table, dict) or not all(isinstance(v, dict) for v in table.values()):
         raise ModelError(f"{source}: metadata key 'hp_presets' must map preset names to objects")
     return table
@@ -205,7 +220,8 @@ def _apply(
         low, high = _BOUNDS[key]
         if (low is not None and value < low) or (high is not None and value > high):
             span = f"[{low}, {high}]" if high is not None else f">= {low}"
-            raise fail(f"{what} '{key}' is {value}, expected {span}")
+            shown = value if abs(value) < 1e15 else f"{value:.6g}"  # 1e300 as an int has 301 digits
+            raise fail(f"{what} '{key}' is {shown}, expected {span}")
         values[key] = value
 
 

@@ -56,12 +56,18 @@ def physical_cores() -> int:
     return max(1, len(cores))
 
 
+THREADS_PER_CORE = 4  # more only queue behind each other
+
+
 def thread_count(threads: int | None = None) -> int:
     """`threads` checked, or the physical core count when None."""
     if threads is None:
         return physical_cores()
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise InputError(f"threads must be a positive integer, got {threads!r}")
+    most = THREADS_PER_CORE * (os.cpu_count() or 1)
+    if threads > most:  # 100000 threads hung the process; 1000000 took all memory
+        raise InputError(f"threads is {threads}; at most {most} on this machine ({THREADS_PER_CORE} per logical core)")
     return threads
 
 

@@ -60,9 +60,13 @@ def _check_box(box: Sequence[float], width: int, height: int) -> tuple[float, fl
         raise InputError(f"init box has zero or negative size (w={w:g}, h={h:g})")
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) lies outside the {width}x{height} frame")
+    if w > MAX_BOX_FRAMES * width or h > MAX_BOX_FRAMES * height:  # 1e300 overflowed the crop arithmetic
+        raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) is more than {MAX_BOX_FRAMES}x the "
+                         f"{width}x{height} frame")
     return x, y, w, h
 
 
+MAX_BOX_FRAMES = 4  # an init box may reach past the frame's edges, not be many frames wide
 _TINY = 1e-9  # a non-positive proposed side counts as the largest shrink
 
 
@@ -203,7 +207,10 @@ class Tracker:
         t2 = time.perf_counter()
         img_h, img_w = image.shape[:2]
         w, h = self._size
-        det = self._decode(cls, loc, w * scale, h * scale, p.penalty_k, p.window_influence)
+        if np.isfinite(cls).all() and np.isfinite(loc).all():
+            det = self._decode(cls, loc, w * scale, h * scale, p.penalty_k, p.window_influence)
+        else:  # a broken model (NaN weights) or a NaN input: a miss that holds the box and counts towards lost
+            det = Detection(0.0, 0.0, w * scale, h * scale, 0.0, 0.0, -1)
         size, plausible = self._propose_size(det, scale, img_w, img_h)
         state = self._monitor.observe(det.score, plausible)
         cx, cy = self._centre

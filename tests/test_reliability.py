@@ -147,6 +147,42 @@ def test_config_that_is_not_utf8_is_one_line(tmp_path, capsys) -> None:
     assert "not a text file" in _one_error(capsys)
 
 
+def test_config_nested_too_deeply_is_one_line(tmp_path, capsys) -> None:
+    config = tmp_path / "deep.toml"
+    config.write_text("init = " + "[" * 5000 + "]" * 5000 + "\n")
+    assert cli.main(["--config", str(config)]) == 2  # was: RecursionError traceback
+    assert "not valid TOML (nested too deeply)" in _one_error(capsys)
+
+
+def test_an_abbreviated_config_option_is_read(media, tmp_path, capsys) -> None:
+    """`--conf FILE` was taken as --config by the parser but never read: its keys were silently ignored."""
+    config = tmp_path / "c.toml"
+    config.write_text("bogus = 1\n")
+    argv = ["--video", str(media["video"]), "--init", BOX, "--model", str(media["model"]), "--max-frames", "2"]
+    assert cli.main(["--conf", str(config), *argv]) == 2
+    assert "unknown key 'bogus'" in _one_error(capsys)
+
+
+@pytest.mark.parametrize("box", ["0,0,10,1e308", "0,0,1e160,10", "0,0,700,10"])
+def test_an_init_box_many_frames_wide_is_one_line(box: str, media, capsys) -> None:
+    argv = ["--video", str(media["video"]), "--init", box, "--model", str(media["model"])]
+    assert cli.main(argv) == 2  # was: OverflowError in crop.py for sides past ~1e155
+    assert "is more than 4x the 160x120 frame" in _one_error(capsys)
+
+
+def test_a_model_that_answers_nan_is_lost_not_tracking(tmp_path) -> None:
+    """A checkpoint of NaN weights exported with 'parity OK' answered score nan on every frame, never lost."""
+    from dadiff.runtime.tracker import Tracker
+    from runtime_models import write_corr_model
+
+    tracker = Tracker.load(write_corr_model(tmp_path / "nan", gain=float("nan")), threads=1)
+    image = np.full((120, 160, 3), 30, np.uint8)
+    tracker.init(image, (40, 40, 20, 15))
+    states = [tracker.update(image) for _ in range(10)]
+    assert all(r.box == states[0].box and np.isfinite(r.box).all() for r in states)
+    assert states[0].state == "uncertain" and states[-1].state == "lost"
+
+
 def test_demo_out_naming_a_file_is_one_line(tmp_path, capsys) -> None:
     target = tmp_path / "afile"
     target.write_text("x")
@@ -362,11 +398,12 @@ def test_sub_command_usage_errors_keep_the_command_prefix(capsys) -> None:
 
 
 @pytest.mark.parametrize("hp", ["search_growth=1e308,search_growth_max=1e308", "search_growth_max=1e308",
-                                "max_scale_step=1e308", "max_scale_change=1e300", "max_aspect_change=1e300"])
+                                "max_scale_step=1e308", "max_scale_change=1e300", "max_aspect_change=1e300",
+                                "penalty_k=1e308"])
 def test_hp_growth_and_size_factors_are_bounded(hp: str, media, capsys) -> None:
     argv = ["--video", str(media["video"]), "--init", BOX, "--model", str(media["model"]), "--hp", hp]
     assert cli.main(argv) == 2  # was: accepted, then an OverflowError in crop.py once the target was lost
-    assert "expected [1.0, " in _one_error(capsys)
+    assert "e+30" in (line := _one_error(capsys)) and ", expected [" in line  # penalty_k: numpy warnings
 
 
 def test_hp_overflow_would_reach_the_crop() -> None:

@@ -78,6 +78,13 @@ def test_model_without_metadata(tmp_path: Path) -> None:
         ({"lost_frames": "0"}, "metadata key 'lost_frames' is 0"),
         ({"lr": "1.5"}, r"metadata key 'lr' is 1.5, expected \[0.0, 1.0\]"),
         ({"channel_order": "BRG"}, "expected BGR or RGB"),
+        # huge but finite values: each overflowed the crop arithmetic (an OverflowError traceback)
+        ({"context_amount": "1e308"}, "metadata key 'context_amount' is '1e308', expected at most 10"),
+        ({"min_size": "1e308"}, "metadata key 'min_size' is '1e308', expected at most 1000"),
+        ({"point_origin": "1e308"}, "'point_origin' is '1e308', larger than the 255 px search crop"),
+        ({"stride": "1e308"}, "'stride' is '1e308', larger than the 255 px search crop"),
+        ({"lost_frames": "1e300"}, r"'lost_frames' is 1e\+300, expected \[1, 1000000\]"),  # not 301 digits
+        ({"hp_presets": "[" * 100_000 + "]" * 100_000}, r"'hp_presets' is not valid JSON \(nested too deeply\)"),
         (
             {"instance_size": "256"},
             r"search\.onnx: x has shape \[1, 3, 255, 255\], expected \[1, 3, 256, 256\]",
@@ -110,6 +117,8 @@ def test_providers(good: Path) -> None:
         OnnxBackend(good, provider="warp-drive")
     with pytest.raises(InputError, match="threads must be a positive integer"):
         OnnxBackend(good, threads=0)
+    with pytest.raises(InputError, match="threads is 100000; at most"):  # was: a hang, or all memory at 1e6
+        OnnxBackend(good, threads=100_000)
 
 
 def test_the_shipped_default_is_a_trained_mobile_model() -> None:
