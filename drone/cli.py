@@ -96,6 +96,10 @@ def mavlink_conn(text: str) -> str:
     so `foo:bar` used to run without any link)."""
     spec = text.strip()
     scheme, sep, rest = spec.partition(":")
+    host = rest.rpartition(":")[0]
+    if sep and scheme in NETWORK_SCHEMES and (":" in host or "[" in host):  # pymavlink splits on every ':'
+        raise argparse.ArgumentTypeError(f"pymavlink's {scheme} links take an IPv4 address or a host name, "
+                                         f"not an IPv6 address, got {text!r}")
     ok = (sep and scheme in NETWORK_SCHEMES and _network_ok(rest)) or (
         sep and scheme in SOCKET_SCHEMES and rest.strip()) or _serial_ok(spec)
     if not ok:

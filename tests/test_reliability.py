@@ -242,6 +242,14 @@ def test_mavlink_connection_strings_are_checked(conn: str, media, capsys) -> Non
     assert "argument --mavlink: expected" in _one_error(capsys)
 
 
+@pytest.mark.parametrize("conn", ["udpin:[::1]:14550", "udpout:fe80::1:14550", "tcp:[::]:5760"])
+def test_ipv6_links_are_refused_at_start(conn: str, media, capsys) -> None:
+    """pymavlink splits UDP/TCP specs on every ':' and opens IPv4 sockets: the service retried such a link
+    forever."""
+    assert cli.main(["--video", str(media["video"]), "--mavlink", conn]) == 2
+    assert "not an IPv6 address" in _one_error(capsys)
+
+
 @pytest.mark.parametrize("conn", ["udpin:0.0.0.0:14560", "udpout:127.0.0.1:14550", "tcp:localhost:5760",
                                   "tcpin:0.0.0.0:5760", "/dev/ttyAMA0,921600", "/dev/serial0", "COM3,57600"])
 def test_real_connection_strings_pass(conn: str) -> None:
