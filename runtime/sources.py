@@ -252,11 +252,19 @@ class FolderSource:
             raise SourceError(f"{path}: first line: {exc}") from None
 
     def frames(self) -> Iterator[Frame]:
+        """The readable images; one that cannot be read, or whose size differs from the first image's (another
+        camera's frame, whose pixels the box does not refer to), is skipped and counted."""
+        size: tuple[int, ...] = ()
         for index, path in enumerate(self.files):
             image = read_image(path)
             if image is None:
                 if index == 0:
                     raise SourceError(f"{path}: cannot read the first image")
+                self.skipped += 1
+                continue
+            if index == 0:
+                size = image.shape[:2]
+            elif image.shape[:2] != size:
                 self.skipped += 1
                 continue
             yield Frame(index, time.time(), image)

@@ -120,3 +120,13 @@ def test_folder_natural_order_and_img_subfolder(tmp_path: Path) -> None:
     source = sources.open_source(str(tmp_path))
     assert [p.name for p in source.files] == ["1.jpg", "9.jpg", "10.jpg"]
     assert source.init_box is None
+
+
+def test_folder_skips_an_image_of_another_size(tmp_path: Path) -> None:
+    """A frame of another size was tracked as if its pixels were the first frame's; the target was lost."""
+    for i in range(4):
+        image = IMG if i != 2 else cv2.resize(IMG, (IMG.shape[1] // 2, IMG.shape[0] // 2))
+        cv2.imwrite(str(tmp_path / f"{i + 1:04d}.png"), image)
+    source = sources.open_source(str(tmp_path))
+    assert [f.index for f in source.frames()] == [0, 1, 3]
+    assert source.skipped == 1
