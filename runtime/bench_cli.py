@@ -38,7 +38,7 @@ from .bench import (
     time_search,
     write_night_video,
 )
-from .cli import hp_arg, positive_int
+from .cli import hp_arg, non_negative_int, positive_int
 from .cpu import cpu_flags
 from .errors import InputError, ModelError, OneLineParser
 from .evaluation.datasets import Dataset, DatasetError
@@ -66,6 +66,8 @@ ROWS = (
     ("frame", "frame end to end"), ("template", "template branch (per init)"),
 )
 SUCCESS_SEED = 2026  # the README's generated benchmark: --success 16 --success-frames 120 is that set
+MAX_FRAMES = 1_000_000  # --frames, --warmup, --interleave: the timing arrays take 72 MB at this count
+MAX_CLIP = 1000  # --clip: the generated clip is rendered in memory, about 1.8 MB a frame
 CPU_FLAGS = ("avx2", "avx512f", "avx512_vnni")  # what onnxruntime's and OpenCV's fast kernels dispatch on
 
 
@@ -73,22 +75,38 @@ class BenchError(Exception):
     """One line for the user."""
 
 
+def int_in(low: int, high: int) -> Callable[[str], int]:
+    """argparse type: an integer in [low, high], checked at parsing so that the error names the option
+    (`--clip 1` failed later naming a temporary video, `--frames 1e12` was a numpy allocation traceback)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = low - 1
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {text!r}")
+        return value
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="dadiff-bench", description=__doc__)
     p.add_argument("models", nargs="*", help="model folders or shipped names (default: the shipped default)")
-    p.add_argument("--frames", type=positive_int, default=1000, help="timed frames per model (default 1000)")
-    p.add_argument("--warmup", type=int, default=20, help="untimed frames first (default 20)")
-    p.add_argument("--interleave", type=int, default=50, metavar="N",
+    p.add_argument("--frames", type=int_in(1, MAX_FRAMES), default=1000,
+                   help=f"timed frames per model, at most {MAX_FRAMES} (default 1000)")
+    p.add_argument("--warmup", type=int_in(0, MAX_FRAMES), default=20, help="untimed frames first (default 20)")
+    p.add_argument("--interleave", type=int_in(0, MAX_FRAMES), default=50, metavar="N",
                    help="frames each tracker runs per turn, the trackers taking turns until each has run "
                         "--frames (default 50), so that a busy stretch of a shared machine falls on all of "
                         "them; 0: one tracker after another")
-    p.add_argument("--clip", type=positive_int, default=300, help="length of the generated clip, looped (300)")
-    p.add_argument("--seed", type=int, default=0, help="generated night sequence (default 0, test photos)")
+    p.add_argument("--clip", type=int_in(2, MAX_CLIP), default=300,
+                   help=f"length of the generated clip, looped: 2 to {MAX_CLIP} frames (300)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="generated night sequence (default 0, test photos)")
     p.add_argument("--threads", type=positive_int, help="intra-op threads (default: physical cores)")
     p.add_argument("--provider", help="onnxruntime execution provider (default: the best available)")
     p.add_argument("--hp", type=hp_arg, default={}, metavar="k=v,...",
                    help="tracker settings for every model, as dadiff-run --hp (e.g. motion_compensation=0)")
-    p.add_argument("--success", type=int, default=0, metavar="N",
+    p.add_argument("--success", type=non_negative_int, default=0, metavar="N",
                    help="also score night success on the first N sequences of the generated night benchmark "
                         f"(seed {SUCCESS_SEED}, test photos)")
     p.add_argument("--success-frames", type=positive_int, default=100, help="frames per success sequence (100)")
@@ -96,7 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="time the PyTorch graph on the same crops (needs dadiff[export] and a checkpoint)")
     p.add_argument("--torch-crops", type=positive_int, default=50,
                    help="search crops timed on both engines for --compare-torch (default 50, each run 3 times)")
-    p.add_argument("--checkpoint", help="checkpoint of the first model (default: checkpoint.pt in its folder)")
+    p.add_argument("--checkpoint", help="checkpoint of the first model, for --compare-torch and --sweep-steps "
+                                        "(default: checkpoint.pt in its folder)")
     p.add_argument("--sweep-steps", help="comma-separated DDIM step counts to re-export and compare, e.g. 1,2,4")
     p.add_argument("--peak", action="store_true", help="measure the CPU's arithmetic limit (needs dadiff[export])")
     p.add_argument("--nano", action=argparse.BooleanOptionalAction, default=None,
@@ -133,7 +152,8 @@ def _subprocess_json(args: list[str], what: str) -> dict:
 def _checkpoint(args: argparse.Namespace, folder: Path) -> Path:
     path = Path(args.checkpoint) if args.checkpoint else folder / "checkpoint.pt"
     if not path.is_file():
-        raise BenchError(f"{path}: checkpoint not found (give --checkpoint)")
+        what = "--checkpoint: no such file" if args.checkpoint else "checkpoint not found (give --checkpoint)"
+        raise BenchError(f"{path}: {what}")
     return path
 
 
@@ -362,6 +382,8 @@ def run(args: argparse.Namespace) -> dict:
     if args.peak or args.sweep_steps:
         _export_side("--peak" if args.peak else "--sweep-steps")
     models = _model_folders(args)
+    if args.compare_torch:
+        _checkpoint(args, models[0])  # before minutes of timing, not after
     threads = thread_count(args.threads)
     use_nano = _use_nano(args)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
@@ -400,8 +422,8 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.warmup < 0 or args.success < 0 or args.interleave < 0:
-        print("dadiff-bench: error: --warmup, --success and --interleave must be >= 0", file=sys.stderr)
+    if args.checkpoint and not (args.compare_torch or args.sweep_steps):  # it was silently ignored
+        print("dadiff-bench: error: --checkpoint applies to --compare-torch and --sweep-steps only", file=sys.stderr)
         return 2
     try:
         report = run(args)

@@ -84,6 +84,18 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (seeds: numpy refuses negative ones with a traceback, often after an
+    output folder is made)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog=PROG,
@@ -133,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--demo-out", type=Path, default=Path("dadiff-demo"),
                         help="folder for --demo's video (default: ./dadiff-demo)")
-    parser.add_argument("--seed", type=int, default=0, help="sequence seed for --demo (default: 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="sequence seed for --demo (default: 0)")
     from dadiff.drone.cli import add_mavlink_arguments  # light: no pymavlink at parser time
 
     add_mavlink_arguments(parser)

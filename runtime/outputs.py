@@ -32,7 +32,8 @@ class OutputError(Exception):
     """An output file cannot be written (one-line message)."""
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (through links too), or would once created."""
     try:
         if a.exists() and b.exists():
             return os.path.samefile(a, b)  # hard and symbolic links too
@@ -41,7 +42,8 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def _inside(path: Path, folder: Path) -> bool:
+def inside_folder(path: Path, folder: Path) -> bool:
+    """Whether `path` lies in `folder` or below it, links resolved."""
     try:
         return path.expanduser().resolve().is_relative_to(folder.resolve())
     except OSError:
@@ -57,13 +59,13 @@ def check_distinct(video: str | None, outputs: dict[str, Path | None]) -> None:
     is_file = bool(spec) and "://" not in spec and not spec.isdigit() and not spec.startswith("/dev/")
     source = Path(spec).expanduser() if is_file else None
     for i, (option, path) in enumerate(named):
-        if source is not None and source.is_dir() and _inside(path, source):
+        if source is not None and source.is_dir() and inside_folder(path, source):
             raise OutputError(f"{path}: {option} lies inside the input folder {source}; choose a path outside it "
                               "(nothing written)")
-        if source is not None and _same_file(path, source):
+        if source is not None and same_file(path, source):
             raise OutputError(f"{path}: {option} names the input video; choose another file (nothing written)")
         for other, earlier in named[:i]:
-            if _same_file(path, earlier):
+            if same_file(path, earlier):
                 raise OutputError(f"{path}: given to both {other} and {option}; choose two files")
 
 

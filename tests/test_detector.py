@@ -70,3 +70,17 @@ def test_a_bad_detector_is_one_line_and_exit_2(tmp_path: Path, capsys, make, mes
     assert eval_main(["detect", "--video", str(video), "--detector", str(model), "--out", str(tmp_path / "d.txt")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
+
+
+def test_detect_out_never_replaces_the_video_its_frames_or_the_detector(tmp_path: Path, capsys):
+    model = _detector(tmp_path / "d.onnx", [[0.1, 0.25, 0.9, 0.5]], [0.8], [1.0])
+    video = tmp_path / "frames"
+    video.mkdir()
+    for i in range(2):
+        cv2.imwrite(str(video / f"{i:04d}.png"), np.zeros((50, 80, 3), np.uint8))
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    for out, message in [(video / "0000.png", "lies inside the input folder"), (model, "names the input file")]:
+        assert eval_main(["detect", "--video", str(video), "--detector", str(model), "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before

@@ -226,3 +226,68 @@ def test_sequence_filter_does_not_swallow_result_folders(bench, tmp_path, capsys
     assert main(["score", "--dataset", str(bench), "--sequences", "*_night", "--sequences", "*_day",
                  str(folder)]) == 0
     assert "4 sequences" in capsys.readouterr().out
+
+
+def _status(argv: list[str]) -> int:
+    """main's exit status, usage errors (which leave through argparse's SystemExit) included."""
+    try:
+        return main(argv)
+    except SystemExit as exc:
+        return exc.code
+
+
+@pytest.mark.parametrize("name", ["../../evil", "", ".", "..", "a/b"])
+def test_run_name_must_be_one_folder_name(bench, tmp_path, capsys, name):
+    results = tmp_path / "deep" / "results"
+    assert _status(["run", "--dataset", str(bench), "--results", str(results), "--tracker", "dadiff",
+                    "--model", "dadiff-lite", "--name", name, "--no-progress", "--no-plots"]) == 2
+    assert "argument --name: expected a folder name" in _one_error_line(capsys)
+    assert list(tmp_path.rglob("*")) == []  # was: ../../evil beside the results, "" the model's name
+
+
+def test_run_and_score_outputs_never_land_in_the_dataset(bench, tmp_path, capsys):
+    before = {p: p.read_bytes() for p in bench.rglob("*") if p.is_file()}
+    run = ["run", "--dataset", str(bench), "--tracker", "dadiff", "--model", "dadiff-lite", "--no-progress"]
+    assert main([*run, "--results", str(bench.parent), "--no-plots"]) == 2  # <results>/bench/<name> is in bench
+    assert "--results lies inside the input folder" in _one_error_line(capsys)
+    assert main([*run, "--results", str(tmp_path / "r"), "--plots", str(bench / "seq001_day" / "img")]) == 2
+    assert "--plots lies inside the input folder" in _one_error_line(capsys)
+    video = tmp_path / "v.mp4"
+    video.write_bytes(b"not results")
+    assert main([*run, "--results", str(video), "--no-plots"]) == 2  # was: every sequence tracked, then an error
+    assert "v.mp4: is a file, not a folder; --results needs a folder" in _one_error_line(capsys)
+    assert main(["score", "--dataset", str(bench), "--plots", str(bench / "plots"), str(tmp_path)]) == 2
+    assert "--plots lies inside the input folder" in _one_error_line(capsys)
+    assert {p: p.read_bytes() for p in bench.rglob("*") if p.is_file()} == before
+    assert not (tmp_path / "r").exists() and video.read_bytes() == b"not results"
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [(["--seed", "-1"], "argument --seed: expected a non-negative integer, got '-1'"),
+     (["--size", "100000x100000"], "argument --size: frame size must be at most 4096 x 4096"),
+     (["--size", "16x16"], "argument --size: frame size must be at least 64 x 64")],
+)
+def test_generate_checks_seed_and_size_before_making_the_folder(tmp_path, capsys, option, message):
+    out = tmp_path / "g"
+    assert _status(["generate", "--out", str(out), "--sequences", "1", "--frames", "3", *option]) == 2
+    assert message in _one_error_line(capsys)
+    assert not out.exists()  # was: a traceback (numpy's seed, OpenCV's allocation) and an empty folder
+
+
+def test_score_names_a_deeply_nested_json_dataset(tmp_path, capsys):
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100000 + "]" * 100000)
+    assert main(["score", "--dataset", str(deep), str(tmp_path)]) == 2
+    assert "deep.json: not a pysot-toolkit JSON file (nested too deeply)" in _one_error_line(capsys)
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # pytest keeps warnings off capsys: make one fail the test
+def test_score_of_huge_boxes_prints_no_numpy_warning(bench, tmp_path, capsys):
+    folder = tmp_path / "T"
+    folder.mkdir()
+    for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
+        (folder / f"{seq}.txt").write_text("1e308,1e308,1e308,1e308\n" * 4)
+    assert main(["score", "--dataset", str(bench), "--json", str(folder)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and json.loads(captured.out)["T"]["success"] == 0

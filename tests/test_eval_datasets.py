@@ -133,3 +133,16 @@ def test_attribute_flags_of_unknown_length():
     assert parse_attributes("1 0 1 0 0 0 0 0 0 0 0 1", "x") == ("SV", "LR", "SO")
     with pytest.raises(DatasetError, match="3 attribute flags"):
         parse_attributes("1,0,1", "x")
+
+
+def test_deeply_nested_json_is_a_dataset_error_not_a_recursion_traceback(tmp_path):
+    deep = "[" * 100000 + "]" * 100000  # json's decoder recurses per level
+    (tmp_path / "deep.json").write_text(deep)
+    with pytest.raises(DatasetError, match="deep.json: not a pysot-toolkit JSON file \\(nested too deeply\\)"):
+        load_dataset(tmp_path / "deep.json")
+    root = tmp_path / "OTB"
+    _frames(root / "Basketball" / "img", 1)
+    (root / "Basketball" / "groundtruth_rect.txt").write_text("1,2,3,4\n")
+    (root / "attributes.json").write_text(deep)
+    with pytest.raises(DatasetError, match="attributes.json: expected a JSON object"):
+        load_dataset(root)

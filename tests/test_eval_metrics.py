@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -129,3 +130,15 @@ def test_paired_difference_interval_holds_the_mean_and_shrinks_with_agreement():
     assert noisy.high - noisy.low > 0.05
     with pytest.raises(ValueError, match="same non-empty sequences"):
         paired_difference([0.1, 0.2], [0.1])
+
+
+@pytest.mark.parametrize("value", [1e308, 1.7e308, -1e308])
+def test_huge_finite_boxes_fail_without_numpy_warnings(value):
+    """A result row of 1e308 used to print overflow RuntimeWarnings on stderr; it is a plain failure."""
+    gt = [[10, 10, 10, 10]] * 2
+    pred = [[value, value, abs(value), abs(value)]] * 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert success_curve(gt, pred).sum() == 0
+        assert precision_curve(gt, pred).sum() == 0
+        assert norm_precision_curve(gt, pred).sum() == 0

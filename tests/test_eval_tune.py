@@ -76,3 +76,18 @@ def test_tune_bad_grid_is_one_line_and_exit_2(bench, capsys):
     assert main(["tune", "--model", "dadiff-mobile", "--dataset", str(bench), "--grid", "speed=1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown parameter 'speed'" in err[0]
+
+
+def test_tune_out_never_replaces_input_or_other_files(bench, tmp_path, capsys):
+    """--out replaced any file, a dataset's ground truth included; now only a new file or an earlier trials CSV."""
+    gt = bench / "seq001_day" / "groundtruth_rect.txt"
+    other = tmp_path / "notes.txt"
+    other.write_text("mine\n")
+    before = gt.read_bytes()
+    cases = [(gt, "--out lies inside the input folder"), (other, "--out exists and is not a trials CSV")]
+    for out, message in cases:
+        assert main(["tune", "--model", "dadiff-mobile", "--dataset", str(bench), "--grid", "lr=0.3",
+                     "--rounds", "1", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert gt.read_bytes() == before and other.read_text() == "mine\n"

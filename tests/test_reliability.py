@@ -183,6 +183,11 @@ def test_a_model_that_answers_nan_is_lost_not_tracking(tmp_path) -> None:
     assert states[0].state == "uncertain" and states[-1].state == "lost"
 
 
+def test_demo_seed_names_the_option(capsys) -> None:
+    assert cli.main(["--demo", "--seed", "-1"]) == 2  # was: "expected non-negative integer", no option named
+    assert "argument --seed: expected a non-negative integer, got '-1'" in _one_error(capsys)
+
+
 def test_demo_out_naming_a_file_is_one_line(tmp_path, capsys) -> None:
     target = tmp_path / "afile"
     target.write_text("x")

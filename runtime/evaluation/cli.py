@@ -21,14 +21,16 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..cli import hp_arg, positive_int
+from ..cli import hp_arg, non_negative_int, positive_int
 from ..errors import InputError, ModelError, OneLineParser
+from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
 from .anatomy import anatomy, format_anatomy, format_honesty, grey_bins, honesty
 from .datasets import Dataset, DatasetError, load_dataset
@@ -45,6 +47,7 @@ from .evaluate import (
     result_folders,
     run_tracker,
     score_folder,
+    tracker_folder,
 )
 from .fixed_camera import LabelSettings, read_video, write_fixed_camera_benchmark
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
@@ -52,6 +55,7 @@ from .metrics import paired_difference
 from .night import NIGHT_STYLES
 from .photos import PHOTO_SPLITS
 from .plots import write_plots
+from .scene import MAX_SIDE, frame_size
 from .scenes import SOURCES, SceneError, write_benchmark
 
 PROG = "dadiff-eval"
@@ -76,7 +80,17 @@ def _size(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x360, got '{text}'") from None
-    return w, h
+    try:
+        return frame_size((w, h), 1)  # bounded at parse time: 100000x100000 used to be an OpenCV allocation traceback
+    except SceneError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def tracker_name(text: str) -> str:
+    """argparse type for `run --name`: one folder name (`../x` wrote outside the results and `""` the default)."""
+    if text in ("", ".", "..") or "/" in text or (os.altsep and os.altsep in text) or "\0" in text:
+        raise argparse.ArgumentTypeError(f"expected a folder name without '/', not '.' or '..', got {text!r}")
+    return text
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -101,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--nano-dir", type=Path, metavar="DIR",
                      help="folder of nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx "
                           "(default: ../shared/weights/nanotrack/v2 beside the checkout)")
-    run.add_argument("--name", help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO)")
+    run.add_argument("--name", type=tracker_name,
+                     help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO)")
     run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
     run.add_argument("--hp", type=hp_arg, default={}, metavar="k=v,...",
                      help="tracker settings over the preset's, as dadiff-run --hp (e.g. motion_compensation=0)")
@@ -139,9 +154,10 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
     gen.add_argument("--sequences", type=positive_int, default=16, help="sequences (default 16)")
     gen.add_argument("--frames", type=positive_int, default=120, help="frames per sequence (default 120)")
-    gen.add_argument("--seed", type=int, default=0, help="first sequence's seed (default 0)")
+    gen.add_argument("--seed", type=non_negative_int, default=0, help="first sequence's seed (default 0)")
     gen.add_argument("--split", choices=tuple(PHOTO_SPLITS), default="test", help="photo split (default: test)")
-    gen.add_argument("--size", type=_size, default=(640, 360), metavar="WxH", help="frame size (default 640x360)")
+    gen.add_argument("--size", type=_size, default=(640, 360), metavar="WxH",
+                     help=f"frame size, 64 to {MAX_SIDE} px a side (default 640x360)")
     gen.add_argument("--workers", type=positive_int, help="processes (default: one per core)")
     gen.add_argument(
         "--source",
@@ -175,7 +191,8 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--video", required=True, type=Path, help="video file (or folder of frames) from a camera "
                        "that does not move")
     video.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
-    video.add_argument("--seed", type=int, default=0, help="seed of the night cameras and lights (default 0)")
+    video.add_argument("--seed", type=non_negative_int, default=0,
+                       help="seed of the night cameras and lights (default 0)")
     video.add_argument("--min-frames", type=positive_int, default=60, help="shortest sequence (default 60)")
     video.add_argument("--max-frames", type=positive_int, default=150, help="longest sequence (default 150)")
     video.add_argument("--min-aspect", type=float, default=0.0,
@@ -228,7 +245,8 @@ def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
                        help="the detector's boxes as a MOTChallenge det.txt: frame,id,x,y,w,h,score per line, "
                        "frames from 1")
     label.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
-    label.add_argument("--seed", type=int, default=0, help="seed of the night cameras and lights (default 0)")
+    label.add_argument("--seed", type=non_negative_int, default=0,
+                       help="seed of the night cameras and lights (default 0)")
     label.add_argument("--min-frames", type=positive_int, default=30, help="shortest sequence (default 30)")
     label.add_argument("--max-frames", type=positive_int, default=150, help="longest sequence (default 150)")
     label.add_argument("--min-score", type=float, default=0.35, help="detections below are ignored (default 0.35)")
@@ -330,6 +348,28 @@ def report(
 # -------------------------------------------------------------------------------------------- commands
 
 
+def check_output(option: str, path: Path | None, inputs: Sequence[Path]) -> None:
+    """InputError when an output would land on an input file or inside an input folder, before any work:
+    `tune --out ds/a/groundtruth_rect.txt` used to replace the ground truth with a trials table."""
+    if path is None:
+        return
+    for source in inputs:
+        source = Path(source).expanduser()
+        if source.is_dir() and inside_folder(path, source):
+            raise InputError(f"{path}: {option} lies inside the input folder {source}; choose a path outside it "
+                             "(nothing written)")
+        if same_file(path.expanduser(), source):
+            raise InputError(f"{path}: {option} names the input file {source}; choose another (nothing written)")
+
+
+def _check_results(results: Path, dataset: str, name: str) -> None:
+    """`run --results` and the folders under it must be folders where they exist: checked before tracking,
+    which used to run to the end and then fail with 'Not a directory'."""
+    for path in (results, results / dataset, tracker_folder(results, dataset, name)):
+        if path.exists() and not path.is_dir():
+            raise InputError(f"{path}: is a file, not a folder; --results needs a folder here (nothing tracked)")
+
+
 def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
     if args.tracker != "dadiff":
         for option in ("model", "preset", "hp", "threads"):
@@ -359,6 +399,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     except TrackerUnavailable as exc:  # this machine lacks a module or weights: exit 2 like other bad input
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
+    _check_results(args.results, dataset.name, name)
+    check_output("--results", tracker_folder(args.results, dataset.name, name), [args.dataset])
+    plots = None if args.no_plots else (args.plots or args.results / "plots" / dataset.name)
+    check_output("--plots", plots, [args.dataset])
     done = run_tracker(tracker, name, dataset, args.results, progress=not args.no_progress)
     fps = f", {done.fps:.1f} FPS" if done.fps else ""
     print(
@@ -373,7 +417,6 @@ def cmd_run(args: argparse.Namespace) -> int:
             scores.append(score_folder(dataset, folder, other))
         except EvalError as exc:
             print(f"{PROG}: note: not compared: {exc}", file=sys.stderr)
-    plots = None if args.no_plots else (args.plots or args.results / "plots" / dataset.name)
     report(dataset, scores, args.attributes, plots, args.sequences)
     return 0
 
@@ -397,6 +440,7 @@ def format_differences(scores: Sequence[TrackerScores], against: str) -> str:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
+    check_output("--plots", args.plots, [args.dataset])
     dataset = load_dataset(args.dataset).select(args.sequences)
     scores = [score_folder(dataset, folder, name) for name, folder in result_folders(args.dirs, dataset)]
     differences = format_differences(scores, args.against) if args.against else None
@@ -555,6 +599,7 @@ def _check_min_score(args: argparse.Namespace) -> None:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     _check_min_score(args)
+    check_output("--out", args.out, [args.video, args.detector])
     detector = Detector(args.detector, threads=args.threads)
     frames = read_video(args.video)
     start = time.perf_counter()
@@ -596,6 +641,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from .tune import (
         DEFAULT_GRID,
         best_trial,
+        check_trials_out,
         coordinate_search,
         load_sequences,
         parse_grid,
@@ -604,6 +650,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
     )
 
     grid = parse_grid(args.grid) or DEFAULT_GRID
+    if args.out:  # written after minutes of tuning: checked first
+        check_output("--out", args.out, args.dataset)
+        check_trials_out(args.out)
     first_tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads)  # before minutes of decoding
     sequences = [s for path in args.dataset for s in load_sequences(load_dataset(path).select(args.sequences))]
     backend = first_tracker.backend  # one onnxruntime session for every trial

@@ -127,7 +127,7 @@ def _remove_listed(folder: Path) -> None:
     """Delete the PNGs an earlier index in `folder` lists (and that index), nothing else."""
     try:
         listed = [item["file"] for item in json.loads((folder / "index.json").read_text())["cutouts"]]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
         return
     for name in listed:
         if isinstance(name, str) and "/" not in name and name.endswith(".png"):
@@ -150,7 +150,7 @@ def cutout_images(folder: str | Path, split: str) -> list[LibraryImage]:
         ]
     except OSError:
         raise LibraryError(f"{index}: no cut-out index here (make one with dadiff-eval cutouts)") from None
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise LibraryError(f"{index}: not a valid cut-out index ({exc})") from None
     chosen = [i for i in images if i.split == split]
     if not chosen:

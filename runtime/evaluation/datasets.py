@@ -192,6 +192,8 @@ def _json(file: Path) -> list[Sequence]:
         meta = json.loads(file.read_text())
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{file}: not a readable pysot-toolkit JSON file ({exc})") from None
+    except RecursionError:  # json's decoder recurses per level: '[' * 100000 was a traceback
+        raise DatasetError(f"{file}: not a pysot-toolkit JSON file (nested too deeply)") from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{file}: expected a JSON object {{sequence: {{img_names, gt_rect, ...}}}}")
     root, sequences = file.parent, []
@@ -223,7 +225,7 @@ def _apply_attributes_json(path: Path, sequences: list[Sequence]) -> list[Sequen
     try:
         table = json.loads(file.read_text())
         table = {str(k): tuple(str(a) for a in v) for k, v in table.items()}
-    except (OSError, ValueError, AttributeError, TypeError):
+    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
         raise DatasetError(f"{file}: expected a JSON object {{sequence: [attribute, ...]}}") from None
     return [replace(s, attributes=table[s.name]) if s.name in table else s for s in sequences]
 

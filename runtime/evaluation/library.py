@@ -151,7 +151,7 @@ def open_library(root: Path | None = None) -> Library | None:
     try:
         packages = json.loads(index.read_text())["packages"]
         return _library(root, packages)
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise LibraryError(f"{index}: not a valid library index ({exc}); run `dadiff-eval data fetch` again") from None
 
 

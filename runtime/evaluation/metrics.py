@@ -53,7 +53,8 @@ def iou(gt: object, pred: object) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         valid = np.sum(g[:, 2:] > 0, axis=1) == 2
     g, p = g[valid], p[valid]
-    with np.errstate(invalid="ignore", divide="ignore"):
+    # over: a finite but huge box (1e308) overflows to inf, giving IoU 0 or NaN (a failure) as it should
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         left = np.maximum(g[:, 0], p[:, 0])
         right = np.minimum(g[:, 0] + g[:, 2], p[:, 0] + p[:, 2])
         top = np.maximum(g[:, 1], p[:, 1])
@@ -72,14 +73,16 @@ def iou_with_each(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
 def centres(boxes: object) -> np.ndarray:
     """(N, 2) centres in the toolkit's convention, (x + (w - 1)/2, y + (h - 1)/2)."""
     b = as_boxes(boxes)
-    return np.stack([b[:, 0] + (b[:, 2] - 1) / 2, b[:, 1] + (b[:, 3] - 1) / 2], axis=1)
+    with np.errstate(over="ignore"):  # a huge box's centre is inf: a miss at every threshold
+        return np.stack([b[:, 0] + (b[:, 2] - 1) / 2, b[:, 1] + (b[:, 3] - 1) / 2], axis=1)
 
 
 def _distances(gt_c: np.ndarray, pred_c: np.ndarray) -> np.ndarray:
     out = np.full(len(gt_c), -1.0)
     with np.errstate(invalid="ignore"):
         valid = np.sum(gt_c > 0, axis=1) == 2
-    out[valid] = np.sqrt(np.sum((gt_c[valid] - pred_c[valid]) ** 2, axis=1))
+    with np.errstate(over="ignore", invalid="ignore"):  # huge boxes: an inf (or NaN) distance, a miss
+        out[valid] = np.sqrt(np.sum((gt_c[valid] - pred_c[valid]) ** 2, axis=1))
     return out
 
 

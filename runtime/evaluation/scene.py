@@ -35,6 +35,7 @@ CM_PIXELS = 1.0  # CM: the background moves more than 1 px per frame on average
 IV_RATIO = 1.5  # IV: global brightness max / min above 1.5
 ATTRIBUTE_ORDER = ("SV", "ARC", "OCC", "FM", "CM", "LR", "IV", "SOB", "LAI")
 
+MAX_SIDE = 4096  # largest frame side: a 4096 x 4096 frame is 48 MiB; 100000 x 100000 failed in OpenCV
 SUPERSAMPLE = 4  # supersampling of object masks
 _MIN_VISIBLE = 0.3  # an occluder never hides more than 70 % of the object
 
@@ -259,10 +260,13 @@ class Scene:
 
 
 def frame_size(size: tuple[int, int], frames: int) -> tuple[int, int]:
-    """(width, height) of a scene's frames as ints; SceneError when the size or the frame count is too small."""
+    """(width, height) of a scene's frames as ints; SceneError when the size is outside 64..MAX_SIDE a side (a
+    huge one was an OpenCV allocation traceback) or the frame count is below 1."""
     width, height = (int(v) for v in size)
     if width < 64 or height < 64:
         raise SceneError(f"frame size must be at least 64 x 64, got {width} x {height}")
+    if width > MAX_SIDE or height > MAX_SIDE:
+        raise SceneError(f"frame size must be at most {MAX_SIDE} x {MAX_SIDE}, got {width} x {height}")
     if frames < 1:
         raise SceneError(f"frames must be at least 1, got {frames}")
     return width, height

@@ -24,7 +24,7 @@ import numpy as np
 from .library_scenes import library_images, open_scene_library, random_library_scene
 from .night import FrameLights, NightStyle, RealNight, check_night_style
 from .photos import check_split, load_photos
-from .scene import Scene
+from .scene import Scene, frame_size
 from .scene_error import SceneError  # also the generator's error for its callers
 
 
@@ -211,6 +211,9 @@ def write_benchmark(
         raise SceneError("gusts need the library source (--source library)")
     if sequences < 1 or frames < 1:
         raise SceneError(f"need at least one sequence and one frame, got {sequences} x {frames}")
+    frame_size(size, frames)  # here, not only in the workers: a bad size must not leave an empty root behind
+    if int(seed) < 0:
+        raise SceneError(f"seed must be >= 0, got {seed}")
     root = Path(root).expanduser()
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise SceneError(f"{root}: exists and is not an empty folder; choose a new --out")

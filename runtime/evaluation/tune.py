@@ -27,6 +27,7 @@ DEFAULT_GRID: dict[str, tuple[float, ...]] = {
     "window_influence": (0.2, 0.3, 0.4, 0.5, 0.6),
     "lr": (0.3, 0.473, 0.6, 0.8),
 }
+SCORE_COLUMNS = ("success", "precision", "norm_precision")  # the last columns of a trials CSV
 
 
 @dataclass(frozen=True)
@@ -125,12 +126,27 @@ def best_trial(trials: Sequence[Trial]) -> Trial:
     return max(trials, key=lambda t: t.scores.success)
 
 
+def check_trials_out(path: Path) -> None:
+    """InputError unless `path` is new or a trials CSV that `write_trials` wrote: `--out` replaced any file,
+    a dataset's ground truth or a video included."""
+    if not path.exists():
+        return
+    try:
+        with open(path, "rb") as f:
+            first = f.read(4096).split(b"\n", 1)[0].strip()
+    except OSError:
+        first = b""
+    if not first.endswith(b"," + ",".join(SCORE_COLUMNS).encode()):
+        raise InputError(f"{path}: --out exists and is not a trials CSV of dadiff-eval tune; choose a new file "
+                         "(nothing written)")
+
+
 def write_trials(path: Path, trials: Sequence[Trial]) -> None:
     keys = sorted({k for t in trials for k in t.values})
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow([*keys, "success", "precision", "norm_precision"])
+        writer.writerow([*keys, *SCORE_COLUMNS])
         for t in trials:
             writer.writerow([*(f"{t.values[k]:g}" for k in keys), f"{t.scores.success:.4f}",
                              f"{t.scores.precision:.4f}", f"{t.scores.norm_precision:.4f}"])
