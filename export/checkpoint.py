@@ -128,6 +128,22 @@ def load_state_dict_strict(model: DaDiffNet, sd: dict[str, torch.Tensor], path: 
     model.load_state_dict(sd, strict=True)
 
 
+def _check_format(version: Any, path: Path) -> None:
+    """Our checkpoints say which layout they hold; a later one may mean its keys differently."""
+    if type(version) is not int or version != FORMAT_VERSION:
+        raise CheckpointError(f"{path}: 'dadiff_format' is {version!r}; this exporter reads format {FORMAT_VERSION}")
+
+
+def check_finite(sd: dict[str, torch.Tensor], path: Path) -> None:
+    """CheckpointError naming the first tensor holding NaN or inf (a diverged run or a damaged file): such
+    weights give NaN outputs, which no parity tolerance catches."""
+    for key, tensor in sd.items():
+        if (tensor.is_floating_point() or tensor.is_complex()) and not bool(torch.isfinite(tensor).all()):
+            bad = int((~torch.isfinite(tensor)).sum())
+            raise CheckpointError(f"{path}: tensor '{key}' holds {bad} NaN or inf value(s) of {tensor.numel()}; "
+                                  "the training diverged or the file is damaged")
+
+
 def load_checkpoint(path: str | Path, family: str | None = None, steps: int | None = None,
                     preset: str | None = None) -> LoadedCheckpoint:
     """Build the right model for a checkpoint and load it strictly (eval mode)."""
@@ -136,6 +152,7 @@ def load_checkpoint(path: str | Path, family: str | None = None, steps: int | No
     sd = _state_dict_of(obj, p)
     extra: dict[str, Any] = {}
     if isinstance(obj, dict) and isinstance(obj.get("config"), dict):
+        _check_format(obj.get("dadiff_format"), p)
         try:
             cfg = ModelConfig.from_dict(obj["config"])
         except (TypeError, ValueError, KeyError) as e:
@@ -162,6 +179,7 @@ def load_checkpoint(path: str | Path, family: str | None = None, steps: int | No
     except (TypeError, ValueError, RuntimeError) as e:
         raise CheckpointError(f"{p}: invalid model config: {e}") from None
     load_state_dict_strict(model, sd, p)
+    check_finite(sd, p)
     model.eval()
     return LoadedCheckpoint(model, cfg, source, file_sha256(p), extra)
 

@@ -18,7 +18,7 @@ from dadiff.models import ModelNotFoundError, resolve
 from dadiff.runtime.errors import OneLineParser
 from dadiff.runtime.sources import SourceError, open_source, parse_box
 
-from .config import FAMILIES, HP_PRESETS
+from .config import FAMILIES, HP_PRESETS, MAX_MIN_SIZE
 from .defaults import (
     DEFAULT_BENCH_RUNS,
     DEFAULT_CALIBRATION_FRAMES,
@@ -45,16 +45,18 @@ class UserError(Exception):
 PROG = "dadiff-export"
 
 
-def _finite(low: float) -> Any:
-    """argparse type: a finite number >= `low`. Tolerance >= 0: nan would switch the parity gate off, a negative
-    one fail it late; box side >= 1: the tracker divides by it."""
+def _finite(low: float, high: float | None = None) -> Any:
+    """argparse type: a finite number >= `low` (and <= `high`). Tolerance >= 0: nan would switch the parity gate
+    off, a negative one fail it late; box side >= 1: the tracker divides by it, and at most MAX_MIN_SIZE: 1e308
+    overflowed the runtime's crop arithmetic."""
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             value = math.nan
-        if not math.isfinite(value) or value < low:
-            raise argparse.ArgumentTypeError(f"expected a finite number >= {low:g}, got {text!r}")
+        if not math.isfinite(value) or value < low or (high is not None and value > high):
+            span = f">= {low:g}" if high is None else f"in {low:g}..{high:g}"
+            raise argparse.ArgumentTypeError(f"expected a finite number {span}, got {text!r}")
         return value
 
     return parse
@@ -85,9 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search-size", type=_count(1), metavar="PX",
                    help="search crop side the graphs take, the trained size or smaller by a multiple of twice the "
                         "stride (dadiff-mobile: 255 trained, 223, 191, 159; default: the trained size)")
-    p.add_argument("--min-size", type=_finite(1), metavar="PX",
-                   help="smallest box side the runtime keeps, in frame pixels; it also sets how far the crops "
-                        "magnify a tiny target (metadata min_size; default: the checkpoint's, 10 as released)")
+    p.add_argument("--min-size", type=_finite(1, MAX_MIN_SIZE), metavar="PX",
+                   help=f"smallest box side the runtime keeps, in frame pixels, 1..{MAX_MIN_SIZE:g}; it also sets how "
+                        "far the crops magnify a tiny target (metadata min_size; default: the checkpoint's, 10 as "
+                        "released)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1} (default {DEFAULT_OPSET})")
     p.add_argument("--family", choices=FAMILIES, help="require this model family (default: any)")

@@ -15,6 +15,13 @@ LITE0_TRUNKS: dict[str, tuple[int, int | None, tuple[int, ...]]] = {
 }
 FINE_SKIP_BACKBONE = "efficientnet-lite0-s16"  # `fine_skip` folds its block 4 (stride 8, 40 channels) into 16 px cells
 FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS = 4, 40
+# Output stride of each trunk: stem 2 x each subsampling block (tests/test_export_bad_input.py checks the Lite0
+# ones against the trunks). The tracker's stride is this over head_upsample; another one decodes boxes wrongly.
+BACKBONE_STRIDES = {"resnet50-atrous": 8, "efficientnet-lite0": 8, "efficientnet-lite0-s16": 16}
+# Upper bounds of the stored crop settings, far past any model's (released: context 0.5, floor 10 px) and far
+# below the values that overflowed the runtime's crop arithmetic (1e308 made every window infinite).
+MAX_CONTEXT_AMOUNT = 10.0
+MAX_MIN_SIZE = 1000.0
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
 HP_PRESETS: dict[str, dict[str, float]] = {
@@ -87,7 +94,9 @@ class ModelConfig:
         if unknown:
             raise ValueError(f"unknown model config keys: {', '.join(unknown)}")
         d = dict(d)
-        raw_tracker = d.pop("tracker", {})
+        if "tracker" not in d:  # guessing the crop geometry would export a model that decodes boxes wrongly
+            raise ValueError("'tracker' is missing (the crop geometry: exemplar_size, instance_size, stride, ...)")
+        raw_tracker = d.pop("tracker")
         if not isinstance(raw_tracker, dict):
             raise ValueError(f"'tracker' must be a table, got {raw_tracker!r}")
         unknown = sorted(set(raw_tracker) - {f.name for f in fields(TrackerConfig)})
@@ -179,8 +188,10 @@ def _check_model_fields(cfg: ModelConfig) -> None:
     if not 1 <= cfg.ddim_steps <= cfg.diffusion_total_steps:
         raise ValueError(f"'ddim_steps' is {cfg.ddim_steps}; expected 1..{cfg.diffusion_total_steps} "
                          "(diffusion_total_steps)")
-    if cfg.ddim_start_t is not None and (not _is_int(cfg.ddim_start_t) or cfg.ddim_start_t < 0):
-        raise ValueError(f"'ddim_start_t' is {cfg.ddim_start_t!r}; expected an integer >= 0 or none")
+    start, total = cfg.ddim_start_t, cfg.diffusion_total_steps
+    if start is not None and (not _is_int(start) or not 0 <= start < total):
+        raise ValueError(f"'ddim_start_t' is {start!r}; expected an integer in 0..{total - 1} "
+                         f"(below diffusion_total_steps {total}) or none")
     if cfg.align not in ALIGNS:
         raise ValueError(f"'align' is {cfg.align!r}; expected one of {', '.join(ALIGNS)}")
     for name in ("use_dadiff", "align_residual", "denoiser_attention", "fine_skip", "align_template"):
@@ -227,18 +238,37 @@ def _check_tracker_fields(tr: TrackerConfig) -> None:
         value = getattr(tr, name)
         if not _is_int(value):
             raise ValueError(f"'tracker.{name}' is {value!r}; expected an integer")
-    for name in ("context_amount", "min_size"):
-        if not _is_number(getattr(tr, name)):
-            raise ValueError(f"'tracker.{name}' is {getattr(tr, name)!r}; expected a number")
+    for name, most in (("context_amount", MAX_CONTEXT_AMOUNT), ("min_size", MAX_MIN_SIZE)):
+        value = getattr(tr, name)
+        if not _is_number(value):
+            raise ValueError(f"'tracker.{name}' is {value!r}; expected a number")
+        if value > most:  # negative ones: the runtime's checks below
+            raise ValueError(f"'tracker.{name}' is {value!r}; expected at most {most:g}")
     if not isinstance(tr.hp_presets, dict) or not all(isinstance(v, dict) for v in tr.hp_presets.values()):
         raise ValueError("'tracker.hp_presets' must map preset names to tables")
     if tr.default_preset not in tr.hp_presets:
         known = ", ".join(sorted(tr.hp_presets)) or "none"
         raise ValueError(f"'tracker.default_preset' is {tr.default_preset!r}; the presets are {known}")
+    from dadiff.runtime.config import TUNABLE_KEYS  # torch-free: the keys the runtime reads from a preset
+
     for name, table in tr.hp_presets.items():
         for key in ("lr", "penalty_k", "window_influence"):
             if not _is_number(table.get(key)):
                 raise ValueError(f"'tracker.hp_presets.{name}.{key}' is {table.get(key)!r}; expected a number")
+        unknown = sorted(set(table) - set(TUNABLE_KEYS))
+        if unknown:  # the runtime skips them: a misspelt key would silently not apply
+            raise ValueError(f"'tracker.hp_presets.{name}' has unknown key {unknown[0]!r} "
+                             f"(known: {', '.join(TUNABLE_KEYS)})")
+
+
+def _check_tracker_against_model(cfg: ModelConfig) -> None:
+    """The tracker's grid must be the network's: a stride the network does not have decodes every box wrongly."""
+    tr = cfg.tracker
+    trunk = BACKBONE_STRIDES[cfg.backbone]
+    if tr.stride * cfg.head_upsample != trunk:
+        real = f"{trunk // cfg.head_upsample}" if trunk % cfg.head_upsample == 0 else f"{trunk}/{cfg.head_upsample}"
+        raise ValueError(f"'tracker.stride' is {tr.stride}; the network ({cfg.backbone}, head_upsample "
+                         f"{cfg.head_upsample}) has stride {real}")
 
 
 def with_head_upsample(cfg: ModelConfig, upsample: int) -> ModelConfig:
@@ -291,6 +321,7 @@ def validate_config(cfg: ModelConfig) -> None:
         check_metadata(tracker_metadata(cfg.tracker), "tracker settings")
     except ModelError as e:
         raise ValueError(str(e).replace("tracker settings: metadata key ", "tracker key ")) from None
+    _check_tracker_against_model(cfg)
 
 
 def is_lite0(backbone: str) -> bool:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import shutil
 import tempfile
 import time
@@ -209,7 +210,10 @@ def parity_error(ours: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
     The gate uses the second: plain max-abs where outputs are of order 1 (cls logits, the fixture's loc), and
     relative where they are large, as a trained model's `loc` is (box distances of tens of pixels that come
     out of exp(): float32 kernels that differ in summation order put ~1e-5 relative there, ~5e-4 absolute).
+    NaN or inf on either side is (inf, inf): NaN compares false with any tolerance and would pass the gate.
     """
+    if not (np.isfinite(ours).all() and np.isfinite(ref).all()):
+        return math.inf, math.inf
     diff = float(np.abs(ours - ref).max())
     return diff, diff / max(1.0, float(np.abs(ref).max()))
 
@@ -264,6 +268,26 @@ def _check_runtime_loads(folder: Path) -> None:
         raise ExportError(f"the runtime refuses the exported model ({e}); no files written") from None
 
 
+def _probe_geometry(net: DaDiffNet, z: torch.Tensor, x: torch.Tensor) -> list[torch.Tensor]:
+    """Run both graphs once on the stored crop sizes; the search graph's inputs after x.
+
+    A stored exemplar_size / instance_size the network's stored start noise does not fit fails here with a
+    tensor-size error deep in the denoiser: one line naming the keys instead.
+    """
+    cfg, tr = net.cfg, net.cfg.tracker
+    try:
+        with torch.no_grad():
+            kernels = GraphLayout.of(net).search_args(TemplateGraph(net)(z))
+            SearchGraph(net)(x, *kernels)
+    except RuntimeError as e:
+        reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ExportError(f"the network does not run on its stored crop sizes (tracker.exemplar_size "
+                          f"{tr.exemplar_size}, tracker.instance_size {tr.instance_size}; template_feature_size "
+                          f"{cfg.template_feature_size}, search_feature_size {cfg.search_feature_size}): {reason}"
+                          ) from None
+    return kernels
+
+
 def folded_for_export(net: DaDiffNet) -> DaDiffNet:
     """A copy of `net` with the backbone's input normalisation folded into its first conv, where it can be.
 
@@ -291,9 +315,7 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
         meta = model_metadata(loaded, name, opset)
         layout = GraphLayout.of(net)
         z, x = parity_inputs(loaded.config)
-        with torch.no_grad():
-            template_values = TemplateGraph(net)(z)
-        kernels = layout.search_args(template_values)
+        kernels = _probe_geometry(net, z, x)
         gflop_search = count_gflop(SearchGraph(net), x, *kernels)
         gflop_template = count_gflop(TemplateGraph(net), z)
         meta |= {"gflop_search": f"{gflop_search:.4f}", "gflop_template": f"{gflop_template:.4f}"}
@@ -307,6 +329,9 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
         errors = check_parity(net, staging)
         parity = {k: v[1] for k, v in errors.items()}
         worst = max(parity, key=parity.get)
+        if not math.isfinite(parity[worst]):
+            raise ExportError(f"parity check failed: output {worst} holds NaN or inf (PyTorch or onnxruntime); a "
+                              f"model must give finite outputs; no files written")
         if parity[worst] > tolerance:
             raise ExportError(f"parity check failed: output {worst} differs by {errors[worst][0]:.3g} "
                               f"(scaled {parity[worst]:.3g}) between PyTorch and onnxruntime (tolerance "

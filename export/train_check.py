@@ -14,6 +14,11 @@ from typing import Any
 from dadiff.runtime.evaluation.night import NIGHT_STYLES
 
 from .config import FAMILIES, ModelConfig, default_config, validate_config, with_overrides
+from .train_cli import SEED_MAX
+
+# Day data kinds (export/train_data.py make_day_source) and the ones that read a folder `root`.
+DAY_KINDS = ("scenes", "got10k", "otb", "sequences", "images")
+ROOT_KINDS = ("got10k", "otb", "sequences", "images")
 
 # (low, inclusive) per numeric key; keys not listed only need the right type.
 MINIMUM: dict[str, tuple[float, bool]] = {
@@ -26,11 +31,11 @@ MINIMUM: dict[str, tuple[float, bool]] = {
     "grad_clip": (0, False), "search_scale": (0, True), "search_shift": (0, True),
     "lambda_distill": (0, True), "lambda_feature": (0, True), "lambda_night_trc": (0, True),
     "lambda_night_distill": (0, True), "night_path_lamps": (0, True), "negative_pairs": (0, True),
-    "lambda_side": (0, True), "ema_decay": (0, True),
+    "lambda_side": (0, True), "ema_decay": (0, True), "seed": (0, True),
 }
 MAXIMUM: dict[str, tuple[float, bool]] = {  # (high, inclusive), as MINIMUM
     "night_path_lamps": (1.0, True), "negative_pairs": (1.0, True), "search_scale": (1.0, True),
-    "ema_decay": (1.0, False), "search_shift": (128.0, True),
+    "ema_decay": (1.0, False), "search_shift": (128.0, True), "seed": (SEED_MAX, True),
 }
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain", "restore"),
@@ -71,15 +76,33 @@ def _fits(value: Any, kind: str) -> bool:
     return isinstance(value, str)
 
 
+def _bound(limit: float) -> str:
+    return str(limit) if isinstance(limit, int) else f"{limit:g}"  # SEED_MAX in full, not 4.29497e+09
+
+
+def _check_day(sources: list[dict[str, Any]]) -> None:
+    """At least one known day source: an empty list or a misspelt kind used to fail only once training ran."""
+    if not sources:
+        raise ValueError("'day' is []; expected at least one day source (e.g. [{kind = \"scenes\"}])")
+    for i, source in enumerate(sources, 1):
+        kind = source.get("kind")
+        if not isinstance(kind, str):
+            raise ValueError(f"'day' entry {i} has no 'kind' (e.g. {{kind = \"scenes\"}})")
+        if kind not in DAY_KINDS:
+            raise ValueError(f"'day' entry {i} has kind {kind!r}; expected one of {', '.join(DAY_KINDS)}")
+        if kind in ROOT_KINDS and not isinstance(source.get("root"), str):
+            raise ValueError(f"'day' entry {i} (kind {kind!r}) has no 'root' (the folder to read)")
+
+
 def _check_range(key: str, value: Any) -> None:
     if key in MINIMUM:
         low, inclusive = MINIMUM[key]
         if value < low or (not inclusive and value == low):
-            raise ValueError(f"'{key}' is {value!r}; expected {'>=' if inclusive else '>'} {low:g}")
+            raise ValueError(f"'{key}' is {value!r}; expected {'>=' if inclusive else '>'} {_bound(low)}")
     if key in MAXIMUM:
         high, inclusive = MAXIMUM[key]
         if value > high or (not inclusive and value == high):
-            raise ValueError(f"'{key}' is {value!r}; expected {'<=' if inclusive else '<'} {high:g}")
+            raise ValueError(f"'{key}' is {value!r}; expected {'<=' if inclusive else '<'} {_bound(high)}")
     if key in CHOICES and value not in CHOICES[key]:
         raise ValueError(f"'{key}' is {value!r}; expected one of {', '.join(CHOICES[key])}")
     for item in value if key in ITEM_CHOICES else ():
@@ -109,9 +132,8 @@ def check_train_values(defaults: Any, values: dict[str, Any], path: str | Path) 
             if not _fits(value, kind):
                 raise ValueError(f"'{key}' is {value!r}; expected {kind}")
             _check_range(key, value)
-        for i, source in enumerate(values.get("day") or []):
-            if not isinstance(source.get("kind"), str):
-                raise ValueError(f"'day' entry {i + 1} has no 'kind' (e.g. {{kind = \"scenes\"}})")
+        if "day" in values:
+            _check_day(values["day"])
         _check_model(values)
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None

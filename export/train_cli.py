@@ -14,6 +14,7 @@ from pathlib import Path
 from dadiff.runtime.errors import OneLineParser
 
 PROG = "dadiff-train"
+SEED_MAX = 2**32 - 1  # numpy's legacy generators take no more; seed * 1000 + rank must fit torch's 64 bits
 EXPORT_EXTRA = 'pip install "dadiff[export]"'
 
 # key, default, what it does: the TrainConfig fields (tests/test_reliability_train.py keeps them in step)
@@ -61,7 +62,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("checkpoint_every", "100", "steps between last.pt saves (>= 1)"),
     ("keep_checkpoints", "false", "also keep each of those saves as step-NNNNNN.pt (to choose one by tracking)"),
     ("ema_decay", "0.0", "> 0 (below 1): also keep a moving average of the weights, saved as final-ema.pt"),
-    ("seed", "0", "random seed"),
+    ("seed", "0", f"random seed (0..{SEED_MAX})"),
     ("teacher", "(none)", "NanoTrack v3 ONNX folder to distil from (stride-16 families)"),
     ("lambda_distill", "1.0", "teacher response distillation weight"),
     ("lambda_feature", "0.5", "teacher search-feature distillation weight"),
@@ -80,17 +81,18 @@ def config_help() -> str:
             f"input (one '{PROG}: error:' line), 130 interrupted.")
 
 
-def _positive(kind: type, zero: bool = False) -> object:
-    """An argparse type: a finite number of `kind` above 0 (or at least 0 with `zero`)."""
+def _positive(kind: type, zero: bool = False, most: int | None = None) -> object:
+    """An argparse type: a finite number of `kind` above 0 (or at least 0 with `zero`), at most `most`."""
     least = "non-negative" if zero else "positive"
+    limit = "" if most is None else f" <= {most}"
 
     def parse(text: str) -> int | float:
         try:
             value = kind(text)
         except ValueError:
             value = -1
-        if not (math.isfinite(value) and (value >= 0 if zero else value > 0)):
-            raise argparse.ArgumentTypeError(f"expected a {least} {kind.__name__}, got {text!r}")
+        if not (math.isfinite(value) and (value >= 0 if zero else value > 0)) or (most is not None and value > most):
+            raise argparse.ArgumentTypeError(f"expected a {least} {kind.__name__}{limit}, got {text!r}")
         return value
 
     return parse
@@ -104,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=_positive(int),
                    help="stop after this many steps of this run (resume later; default: run to 'steps')")
     p.add_argument("--out", help="override the config's output folder")
-    p.add_argument("--seed", type=_positive(int, zero=True),
+    p.add_argument("--seed", type=_positive(int, zero=True, most=SEED_MAX),
                    help="override the config's seed (a second run of one recipe: use another --out too)")
     p.add_argument("--show-config", action="store_true",
                    help="print the config the run would use (after 'extends' and --out/--seed) and exit")

@@ -23,6 +23,8 @@ from torch.utils.data import IterableDataset, get_worker_info
 from dadiff.runtime.crop import crop_side, mean_colour, subwindow
 from dadiff.runtime.evaluation.datasets import DatasetError, read_boxes
 
+from .train_check import DAY_KINDS
+
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
 
 
@@ -336,7 +338,7 @@ def make_day_source(spec: dict):
                               one_night=one_night)
     if kind == "images":
         return ImageFolderSource(spec["root"])
-    raise ValueError(f"unknown day data kind {kind!r}; expected scenes, got10k, otb or images")
+    raise ValueError(f"unknown day data kind {kind!r}; expected one of {', '.join(DAY_KINDS)}")
 
 
 class PairStream(IterableDataset):

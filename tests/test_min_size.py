@@ -35,7 +35,7 @@ def test_export_writes_the_min_size_and_keeps_the_graphs(tmp_path, capsys, mobil
     assert tracker.geometry.min_size == 6.0
 
 
-@pytest.mark.parametrize("value", ["0", "0.5", "-3", "nan", "inf", "small"])
+@pytest.mark.parametrize("value", ["0", "0.5", "-3", "nan", "inf", "small", "1e308", "1001"])  # 1e308 overflowed a crop
 def test_a_bad_min_size_is_one_line_and_exit_2(tmp_path, capsys, mobile_checkpoint, value):
     with pytest.raises(SystemExit) as exc:
         main([str(mobile_checkpoint), "-o", str(tmp_path / "m"), f"--min-size={value}"])

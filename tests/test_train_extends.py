@@ -32,11 +32,12 @@ def test_keys_given_replace_the_base_values_whole_and_the_rest_is_inherited(tmp_
     _write(tmp_path, "configs/base.toml", BASE)
     _write(tmp_path, "configs/middle.toml", 'extends = "base.toml"\n[train]\nsteps = 60\ntrain_only = []\n')
     leaf = _write(tmp_path, "mine/leaf.toml",
-                  'extends = "../configs/middle.toml"\n[train]\nout = "runs/leaf"\nday = [{ kind = "images" }]\n')
+                  'extends = "../configs/middle.toml"\n[train]\nout = "runs/leaf"\n'
+                  'day = [{ kind = "images", root = "f" }]\n')
     cfg = train.TrainConfig.from_toml(leaf)
     assert (cfg.out, cfg.steps, cfg.lr) == ("runs/leaf", 60, 0.001)  # leaf, middle, base
     assert cfg.train_only == []  # an emptied list stays empty: no merge with the base's
-    assert cfg.day == [{"kind": "images"}]  # the whole list replaced, not the first entry
+    assert cfg.day == [{"kind": "images", "root": "f"}]  # the whole list replaced, not the first entry
     assert [p.name for p, _ in config_chain(leaf)] == ["base.toml", "middle.toml", "leaf.toml"]
 
 
