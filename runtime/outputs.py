@@ -16,7 +16,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from .sources import Frame
+from .sources import Frame, folder_inputs
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")  # containers that take the mp4v stream
 LOG_FIELDS = ("frame", "timestamp", "x", "y", "w", "h", "score", "state")
@@ -51,17 +51,18 @@ def inside_folder(path: Path, folder: Path) -> bool:
 
 
 def check_distinct(video: str | None, outputs: dict[str, Path | None]) -> None:
-    """OutputError when an output names the input video, lies inside the input folder, or names another
-    output: opening it would truncate input (`--save-video same.mp4` used to replace the input with a 3-frame
-    file, `--save-video seq/img/%04d.jpg` its frames)."""
+    """OutputError when an output names the input video, a frame or the ground truth of the input folder, or
+    another output: opening it would truncate input (`--save-video same.mp4` used to replace the input with a
+    3-frame file). A new file inside the input folder is fine: only image files are read as frames."""
     named = [(option, Path(path)) for option, path in outputs.items() if path is not None]
     spec = str(video or "")
     is_file = bool(spec) and "://" not in spec and not spec.isdigit() and not spec.startswith("/dev/")
     source = Path(spec).expanduser() if is_file else None
+    inputs = folder_inputs(source) if source is not None and source.is_dir() else []
     for i, (option, path) in enumerate(named):
-        if source is not None and source.is_dir() and inside_folder(path, source):
-            raise OutputError(f"{path}: {option} lies inside the input folder {source}; choose a path outside it "
-                              "(nothing written)")
+        if (given := next((f for f in inputs if same_file(path, f)), None)) is not None:
+            raise OutputError(f"{path}: {option} names {given.name}, an input file of {source}; choose another "
+                              "file (nothing written)")
         if source is not None and same_file(path, source):
             raise OutputError(f"{path}: {option} names the input video; choose another file (nothing written)")
         for other, earlier in named[:i]:

@@ -215,6 +215,17 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
     return values[0], values[1], values[2], values[3]
 
 
+def image_dir(folder: Path) -> Path:
+    """Where a sequence folder keeps its frames: its img/ subfolder if it has one, else itself."""
+    return folder / "img" if (folder / "img").is_dir() else folder
+
+
+def folder_inputs(folder: Path) -> list[Path]:
+    """The files a FolderSource reads: its frames and its ground truth (what an output must never replace)."""
+    frames = [p for p in image_dir(folder).iterdir() if p.suffix.lower() in IMAGE_EXTS]
+    return frames + [folder / name for name in GROUNDTRUTH_FILES if (folder / name).is_file()]
+
+
 class FolderSource:
     """Image files sorted by name (natural order) in a folder or its img/ subfolder; first ground-truth
     line (groundtruth_rect.txt) as the init box. Timestamps are the Unix time each image was read."""
@@ -225,7 +236,7 @@ class FolderSource:
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
-        images = folder / "img" if (folder / "img").is_dir() else folder
+        images = image_dir(folder)
         self.files = sorted((p for p in images.iterdir() if p.suffix.lower() in IMAGE_EXTS), key=_natural_key)
         if not self.files:
             raise SourceError(f"{folder}: no image files found (looked in {images})")

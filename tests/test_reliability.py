@@ -82,15 +82,18 @@ def _image_folder(root: Path, frames: int = 6) -> Path:
     return root
 
 
-def test_outputs_inside_the_input_folder_are_refused_and_its_frames_kept(media, tmp_path, capsys) -> None:
+def test_outputs_over_the_input_folders_files_are_refused_and_new_ones_kept(media, tmp_path, capsys) -> None:
     seq = _image_folder(tmp_path / "seq")
-    before = {f: f.read_bytes() for f in (seq / "img").iterdir()}
+    before = {f: f.read_bytes() for f in [*(seq / "img").iterdir(), seq / "groundtruth_rect.txt"]}
     argv = ["--video", str(seq), "--model", str(media["model"]), "--max-frames", "4"]
-    for option, path in (("--save-video", seq / "img" / "out.mp4"), ("--output", seq / "track.csv")):
-        assert cli.main([*argv, option, str(path)]) == 2  # was: exit 0, written among the frames
-        assert "lies inside the input folder" in _one_error(capsys)
-        assert not path.exists()
-    assert {f: f.read_bytes() for f in (seq / "img").iterdir()} == before
+    (seq / "frame.csv").symlink_to(seq / "img" / "0002.jpg")
+    (seq / "truth.csv").symlink_to(seq / "groundtruth_rect.txt")
+    for name in ("frame.csv", "truth.csv"):  # links: the suffixes alone would let them through
+        assert cli.main([*argv, "--output", str(seq / name)]) == 2
+        assert "an input file of" in _one_error(capsys)
+    assert {f: f.read_bytes() for f in before} == before
+    assert cli.main([*argv, "--output", str(seq / "track.csv"), "--save-video", str(seq / "img" / "out.mp4")]) == 0
+    assert (seq / "track.csv").is_file() and (seq / "img" / "out.mp4").is_file()  # new files beside the input
 
 
 def test_save_video_must_be_a_video_file(media, tmp_path, capsys) -> None:
