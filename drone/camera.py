@@ -53,6 +53,7 @@ NAN = float("nan")
 CAPABILITIES = mavlink.CAMERA_CAP_FLAGS_HAS_TRACKING_POINT | mavlink.CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE
 FIRMWARE_VERSION = 0 << 24 | 0 << 16 | 1 << 8 | 0  # (dev, patch, minor, major) = 0.1.0
 MIN_INTERVAL = 0.02  # 275 at most 50 Hz, whatever is asked
+INT32_MAX = 2**31 - 1  # MESSAGE_INTERVAL carries interval_us as int32
 STALLED_AFTER = 1.0  # seconds without a tracker result while tracking: report ERROR, not the old box
 STATUS_FLAGS = {
     "tracking": mavlink.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE,
@@ -143,8 +144,8 @@ class StatusStream:
 
     def set_interval_us(self, value: float, now: float) -> bool:
         """MAV_CMD_SET_MESSAGE_INTERVAL: -1 stops, 0 restores the default, > 0 sets; False if invalid."""
-        if not math.isfinite(value) or (value < 0 and value != -1):
-            return False
+        if not math.isfinite(value) or (value < 0 and value != -1) or value > INT32_MAX:
+            return False  # MESSAGE_INTERVAL reports it as int32: 3e9 could not be packed
         if value == -1:
             self.interval = None
         elif value == 0:

@@ -309,6 +309,13 @@ def run_mavlink(args: argparse.Namespace) -> int:
         return _error("--mavlink needs --video (the camera: 0, /dev/video0, rtsp://...)")
     if _looks_missing(video):
         return _error(f"no such file or folder: '{video}'")
+    from dadiff.runtime.outputs import OutputError, check_distinct
+
+    try:  # before the log file is opened: it appends to (or rotates away) whatever it names
+        check_distinct(video, {"--output": getattr(args, "output", None),
+                               "--save-video": getattr(args, "save_video", None), "--log-file": args.log_file})
+    except OutputError as exc:
+        return _error(exc)
     try:
         handlers = log_handlers(args.log_file, args.log_max_bytes, args.log_backups)
     except OSError as exc:
@@ -320,7 +327,7 @@ def run_mavlink(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, video: str) -> int:
     from dadiff.runtime.cli import warn_int8
     from dadiff.runtime.errors import InputError, ModelError
-    from dadiff.runtime.outputs import OutputError, Sink, TrackLog, VideoSink, check_distinct
+    from dadiff.runtime.outputs import OutputError, Sink, TrackLog, VideoSink
     from dadiff.runtime.sources import open_source
     from dadiff.runtime.tracker import Tracker
 
@@ -330,8 +337,7 @@ def _run(args: argparse.Namespace, video: str) -> int:
 
     sinks: list[Sink] = []
     try:
-        output, save_video = getattr(args, "output", None), getattr(args, "save_video", None)
-        check_distinct(video, {"--output": output, "--save-video": save_video})
+        output, save_video = getattr(args, "output", None), getattr(args, "save_video", None)  # checked before
         key = load_key(args.signing_key) if args.signing_key is not None else None
         tracker = Tracker.load(
             getattr(args, "model", None),
@@ -350,7 +356,10 @@ def _run(args: argparse.Namespace, video: str) -> int:
             sink.close()
         return _error(exc)
     service = Service(_settings(args, key), tracker, lambda: open_source(video), sinks, Notifier())
-    return _run_with_signals(service)
+    rc = _run_with_signals(service)
+    if service.tracking.startup_error is not None:  # --init that the first frame refuses: exit 2, as without --mavlink
+        return _error(service.tracking.startup_error)
+    return rc
 
 
 def _run_with_signals(service: Any) -> int:
@@ -360,8 +369,10 @@ def _run_with_signals(service: Any) -> int:
     caught: list[int] = []
 
     def stop(signum: int, frame: object) -> None:
+        first = not caught
         caught.append(signum)
-        service.stop()
+        if first:  # a second signal inside the first one's Event.set() deadlocked on its lock
+            service.stop()
 
     previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import socket
+import struct
 from dataclasses import dataclass
 from typing import Any
 
@@ -307,6 +308,9 @@ class Link:
         mav.srcSystem, mav.srcComponent = self.sysid, self.settings.component
         try:
             mav.send(msg)
+        except struct.error as exc:  # a value the message cannot carry, not a lost link: drop it, keep the link
+            self._throttle.log(logging.ERROR, "pack", "%s not sent: %s", msg.get_type(), exc)
+            return False
         except Exception as exc:
             self.lost(now, f"send failed: {type(exc).__name__}: {exc}")
             return False

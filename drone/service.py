@@ -85,7 +85,7 @@ class Service:
             gimbal=self.gimbal,
         )
         if settings.init_box is not None:
-            self.feed.request(Start(pixels=settings.init_box))
+            self.feed.request(Start(pixels=settings.init_box, configured=True))
         self._failed: dict[str, BaseException] = {}
         self.started = threading.Event()
 

@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from dadiff.runtime.errors import InputError
 from dadiff.runtime.outputs import Record, Sink
 from dadiff.runtime.runstats import RunStats
 
@@ -41,6 +42,7 @@ class Start:
     rect: tuple[float, float, float, float] | None = None
     point: tuple[float, float, float] | None = None
     pixels: tuple[float, float, float, float] | None = None
+    configured: bool = False  # --init / the config's init: a box the first frame refuses is a startup error
 
     def box(self, width: int, height: int) -> tuple[float, float, float, float]:
         """(x, y, w, h) in pixels of a width × height frame."""
@@ -149,6 +151,7 @@ class TrackingLoop:
         self.sinks = list(sinks)
         self.max_frames = max_frames
         self.stats = RunStats()
+        self.startup_error: str | None = None  # a configured init box the first frame refused: the service stops
         self.errors = 0
         self._throttle = Throttle(log)
         self._target_id = 0
@@ -188,7 +191,7 @@ class TrackingLoop:
             self._publish(item, "idle", None, 0.0)
             return
         if isinstance(request, Start):
-            self._start(item, request.box(width, height))
+            self._start(item, request.box(width, height), request.configured)
             return
         if not self._tracking:
             return
@@ -215,10 +218,14 @@ class TrackingLoop:
         self._publish(item, state, box, score)
         self._emit(item, Record(box, score, state, self.stats.fps_recent))
 
-    def _start(self, item: Grabbed, box: tuple[float, float, float, float]) -> None:
+    def _start(self, item: Grabbed, box: tuple[float, float, float, float], configured: bool = False) -> None:
         try:
             self.tracker.init(item.frame.image, box)
         except Exception as exc:
+            if configured and isinstance(exc, InputError):  # the operator's setting, not a ground station's command
+                self.startup_error = str(exc)
+                self.stop.set()
+                return
             log.error("cannot start tracking at %s: %s", tuple(round(v, 1) for v in box), exc)
             self._tracking = False
             self._publish(item, "error", None, 0.0)

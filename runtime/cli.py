@@ -57,9 +57,12 @@ def join_negative_boxes(argv: Sequence[str], options: Sequence[str] = BOX_OPTION
 
 def _box_arg(text: str) -> tuple[float, float, float, float]:
     try:
-        return parse_box(text)
+        box = parse_box(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+    if box[2] <= 0 or box[3] <= 0:  # checked here too: the service only meets the box at its first frame
+        raise argparse.ArgumentTypeError(f"box has zero or negative size (w={box[2]:g}, h={box[3]:g}), got {text!r}")
+    return box
 
 
 def hp_arg(text: str) -> dict[str, str]:

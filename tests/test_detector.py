@@ -29,6 +29,14 @@ def test_relative_boxes_become_pixels_of_the_image(tmp_path: Path):
     np.testing.assert_allclose(rows, [[200, 50, 100, 100, 0.9, 1.0]], atol=1e-4)
 
 
+def test_detector_threads_are_bounded_as_the_trackers(tmp_path: Path):
+    from dadiff.runtime.errors import InputError
+
+    model = _detector(tmp_path / "d.onnx", [[0.25, 0.5, 0.75, 0.75]], [0.9], [1.0])
+    with pytest.raises(InputError, match="threads is 100000; at most"):  # went straight to onnxruntime
+        Detector(model, threads=100_000)
+
+
 def test_command_writes_each_tile_box_in_frame_pixels_and_keeps_the_wanted_class(tmp_path: Path, capsys):
     # one person box and one car box per pass, relative to whatever it is shown
     model = _detector(tmp_path / "d.onnx", [[0.1, 0.25, 0.9, 0.5], [0.0, 0.0, 0.5, 0.5]], [0.8, 0.9], [1.0, 3.0])

@@ -212,6 +212,14 @@ def test_stream_schedule_keeps_the_mean_rate() -> None:
     assert stream.set_interval_us(-1, 6.0) and not stream.poll(7.0, fresh=True, active=True, changed=True)
 
 
+def test_intervals_beyond_int32_are_refused() -> None:
+    """MESSAGE_INTERVAL carries interval_us as int32: an accepted 3e9 could not be reported, and every GET
+    after it dropped the link (a pack error read as a lost link)."""
+    stream = StatusStream(default_hz=10.0, idle_hz=1.0)
+    assert not stream.set_interval_us(3e9, 0.0) and not stream.set_interval_us(1e38, 0.0)
+    assert stream.set_interval_us(2**31 - 1, 0.0) and stream.interval_us == 2**31 - 1
+
+
 def test_who_may_command(feed: TrackFeed) -> None:
     def result(camera: CameraComponent, src: tuple[int, int], signed: bool = False, target=(SYS, COMP)):
         msg = long(STOP, src=src, target=target)

@@ -250,6 +250,75 @@ def test_mavlink_connection_strings_are_checked(conn: str, media, capsys) -> Non
     assert "argument --mavlink: expected" in _one_error(capsys)
 
 
+def test_a_message_that_cannot_be_packed_keeps_the_link() -> None:
+    import struct
+
+    from dadiff.drone.link import Link, LinkSettings
+
+    class Mav:
+        srcSystem = srcComponent = 0
+
+        def send(self, msg: object) -> None:
+            raise struct.error("'i' format requires -2147483648 <= number <= 2147483647")
+
+    class Conn:
+        mav = Mav()
+
+    link = Link(LinkSettings(url="udpin:127.0.0.1:9"))
+    link.conn = Conn()  # type: ignore[assignment]
+    msg = mavlink.MAVLink_message_interval_message(275, 2**31)
+    assert link.send(msg, 0.0) is False
+    assert link.conn is not None  # was: "lost (send failed: error ...); reconnecting", over and over
+
+
+def test_service_log_file_over_the_input_is_refused(media, tmp_path, capsys) -> None:
+    same = tmp_path / "same.mp4"
+    same.write_bytes(media["video"].read_bytes())
+    argv = ["--video", str(same), "--mavlink", "udpin:127.0.0.1:9", "--model", str(media["model"]),
+            "--log-file", str(same), "--log-max-bytes", "10000"]
+    assert cli.main(argv) == 2  # was: exit 0, the video rotated away to same.mp4.1 and replaced by log text
+    assert "--log-file names the input video" in _one_error(capsys)
+    assert same.read_bytes() == media["video"].read_bytes()
+
+
+@pytest.mark.parametrize(("init", "message"), [("10,10,-5,-5", "box has zero or negative size"),
+                                                ("1e300,1e300,1e300,1e300", "lies outside the 160x120 frame"),
+                                                ("0,0,1e300,1e300", "more than 4x the 160x120 frame")])
+def test_service_init_box_the_first_frame_refuses_is_one_line(init: str, message: str, media, capsys) -> None:
+    """The service logged 'cannot start tracking', exited 0 and, without --max-frames, ran on in 'error'."""
+    argv = ["--video", str(media["video"]), "--mavlink", "udpin:127.0.0.1:9", "--model", str(media["model"]),
+            f"--init={init}", "--max-frames", "5", "--log-level", "ERROR"]
+    assert cli.main(argv) == 2
+    assert message in _one_error(capsys)
+
+
+def test_a_second_signal_inside_the_first_does_not_deadlock() -> None:
+    """Two SIGINTs 0.1 ms apart: the second handler ran inside the first one's Event.set() and waited on its
+    lock for ever; the handler now stops the service once."""
+    from dadiff.drone.cli import _run_with_signals
+
+    class Service:
+        def __init__(self) -> None:
+            self.stops = 0
+
+        def stop(self) -> None:
+            self.stops += 1
+            if self.stops == 1:
+                os.kill(os.getpid(), signal.SIGINT)  # arrives while the first stop is running
+                for _ in range(1000):  # let the handler run (it runs between bytecodes of this thread)
+                    pass
+
+        def run(self) -> int:
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(1000):
+                pass
+            return 0
+
+    service = Service()
+    assert _run_with_signals(service) == 130
+    assert service.stops == 1
+
+
 @pytest.mark.parametrize("conn", ["udpin:[::1]:14550", "udpout:fe80::1:14550", "tcp:[::]:5760"])
 def test_ipv6_links_are_refused_at_start(conn: str, media, capsys) -> None:
     """pymavlink splits UDP/TCP specs on every ':' and opens IPv4 sockets: the service retried such a link

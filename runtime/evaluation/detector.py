@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import onnxruntime as ort
 
+from ..onnx_backend import thread_count
 from .scene_error import SceneError
 
 OUTPUTS = ("num_detections", "detection_scores", "detection_boxes", "detection_classes")
@@ -29,7 +30,7 @@ class Detector:
         if not path.is_file():
             raise SceneError(f"{path}: no such detector file")
         options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
+        options.intra_op_num_threads = thread_count(threads)  # bounded as the tracker's: 100000 hung a process
         try:
             self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own types for unreadable or invalid models
