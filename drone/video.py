@@ -103,7 +103,8 @@ class FrameGrabber:
             live = bool(getattr(source, "live", True))
             paced = not live and self.realtime
             fps = float(getattr(source, "fps", None) or DEFAULT_FPS)
-            log.info("video opened (%s)", "live" if live else f"file, {fps:g} FPS realtime" if paced else "file")
+            opened = "live" if live else f"file, {fps:g} FPS realtime" if paced else "file"
+            self._throttle.log(logging.INFO, "opened", "video opened (%s)", opened)  # a short --loop clip: each play
             start, count, yielded = resume_at or time.monotonic(), 0, 0
             resume_at = None
             try:
@@ -133,7 +134,7 @@ class FrameGrabber:
             if not live:
                 self.plays += 1
                 if self.loop and yielded:
-                    log.info("video ended; playing it again (--loop)")
+                    self._throttle.log(logging.INFO, "replay", "video ended; playing it again (--loop)")
                     resume_at = start + count / fps if paced else None
                     continue
                 if self.loop:  # nothing at all: do not spin on a broken file

@@ -4,6 +4,7 @@ decodes. The frame grabber alone, with a synthetic file source."""
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Iterator
@@ -87,6 +88,17 @@ def test_loop_plays_it_again() -> None:
     indices = [i for i, _ in got]
     assert indices[:20] == list(range(10)) * 2
     assert rate([t for _, t in got]) == pytest.approx(50.0, rel=0.1)  # no pause at the seam
+
+
+def test_a_short_loop_does_not_flood_the_log(caplog: pytest.LogCaptureFixture) -> None:
+    """Each play of a 0.2 s clip logged two INFO lines, ten a second, without the throttle other lines have."""
+    stop = threading.Event()
+    grabber = FrameGrabber(lambda: FileSource(10, 50.0), stop, realtime=True, loop=True)
+    with caplog.at_level(logging.INFO, logger="dadiff.drone.video"):
+        play(grabber, stop, limit=0.75)
+    assert grabber.plays >= 3
+    for text in ("video opened", "playing it again"):
+        assert sum(text in r.getMessage() for r in caplog.records) == 1
 
 
 def test_folder_without_a_frame_rate_plays_at_the_default() -> None:
