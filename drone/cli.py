@@ -21,20 +21,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.argtypes import int_in
+
 PROG = "dadiff-run"
-
-
-def _int_in(low: int, high: int) -> Any:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = low - 1
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {text!r}")
-        return value
-
-    return parse
 
 
 def _float_in(low: float, high: float, *, open_low: bool = False) -> Any:
@@ -131,11 +120,11 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
                    help="MAVLink dialect (default: ardupilotmega)")
     g.add_argument(
         "--sysid",
-        type=_int_in(1, 254),
+        type=int_in(1, 254),
         help="our system id (the vehicle's); default: speak at once as 1 and adopt the autopilot's id from its "
         "heartbeat",
     )
-    g.add_argument("--component", type=_int_in(100, 105), default=100, help="camera component id (default 100)")
+    g.add_argument("--component", type=int_in(100, 105), default=100, help="camera component id (default 100)")
     g.add_argument(
         "--allow-sysid",
         type=_sysids,
@@ -227,14 +216,14 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
         help="gimbal pitch and yaw rate limit (default 60)",
     )  # fmt: skip
     f.add_argument(
-        "--gimbal-device", type=_int_in(0, 255), default=0, metavar="ID",
+        "--gimbal-device", type=int_in(0, 255), default=0, metavar="ID",
         help="gimbal device id at the gimbal manager (default 0: all)",
     )  # fmt: skip
     s = parser.add_argument_group("service logging")
     s.add_argument("--log-file", type=Path, metavar="FILE", help="also log to this rotating file")
-    s.add_argument("--log-max-bytes", type=_int_in(10_000, 10**10), default=10_000_000, metavar="N",
+    s.add_argument("--log-max-bytes", type=int_in(10_000, 10**10), default=10_000_000, metavar="N",
                    help="rotate the log file at this size (default 10000000)")
-    s.add_argument("--log-backups", type=_int_in(0, 100), default=5, metavar="N",
+    s.add_argument("--log-backups", type=int_in(0, 100), default=5, metavar="N",
                    help="rotated log files kept (default 5)")
     s.add_argument("--log-level", choices=("DEBUG", "INFO", "WARNING", "ERROR"), default="INFO",
                    help="(default: INFO)")

@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
+from .argtypes import int_in
 from .bench import (
     BenchLane,
     BenchRun,
@@ -73,20 +74,6 @@ CPU_FLAGS = ("avx2", "avx512f", "avx512_vnni")  # what onnxruntime's and OpenCV'
 
 class BenchError(Exception):
     """One line for the user."""
-
-
-def int_in(low: int, high: int) -> Callable[[str], int]:
-    """argparse type: an integer in [low, high], checked at parsing so that the error names the option
-    (`--clip 1` failed later naming a temporary video, `--frames 1e12` was a numpy allocation traceback)."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = low - 1
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {text!r}")
-        return value
-    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
