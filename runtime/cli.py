@@ -155,7 +155,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+DEMO_IGNORES = ("video", "init", "output", "save_video", "preset", "hp", "threads", "provider", "max_frames")
+
+
 def _demo(args: argparse.Namespace) -> int:
+    given = [f"--{k.replace('_', '-')}" for k in DEMO_IGNORES if getattr(args, k, None) not in (None, {}, [])]
+    if given:  # they were accepted and silently not applied
+        raise InputError(f"--demo runs the default setup on a generated sequence; {', '.join(given)} "
+                         "do not apply to it (use --model, --seed, --demo-out)")
     if args.demo_out.exists() and not args.demo_out.is_dir():
         raise OutputError(f"{args.demo_out}: --demo-out exists and is not a folder")
     from .evaluation.demo import run_demo  # the generator needs scikit-image's photos: loaded only here

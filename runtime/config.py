@@ -116,9 +116,11 @@ _BOUNDS: dict[str, tuple[float | None, float | None]] = {
 
 def _as_number(raw: object, integer: bool) -> float | int | None:
     """Parse a metadata/override value; None when it is not a finite number (or not integral)."""
+    if isinstance(raw, bool):  # True is 1.0 to float(): a setting given as a flag is a mistake, not 1
+        return None
     try:
         value = float(raw)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int of 400 digits
         return None
     if not math.isfinite(value):
         return None
@@ -256,6 +258,8 @@ def resolve_params(
             strict=False,
         )
     if overrides:
+        if not isinstance(overrides, Mapping):  # "lr=1" or [("lr", 1)] failed on .items()
+            raise InputError(f"overrides must be a mapping of setting to value, got {type(overrides).__name__}")
         _apply(values, overrides, InputError, "override", strict=True)
     return Params(**values)  # type: ignore[arg-type]
 

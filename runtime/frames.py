@@ -17,6 +17,8 @@ def as_image(frame: object) -> np.ndarray:
         raise InputError(f"frame must be a numpy array, got {type(frame).__name__}")
     if frame.dtype != np.uint8:
         raise InputError(f"frame must be uint8, got {frame.dtype}")
+    if frame.ndim >= 2 and (frame.shape[0] == 0 or frame.shape[1] == 0):  # before cvtColor, which asserts on it
+        raise InputError(f"frame is empty (shape {frame.shape})")
     if frame.ndim == 3 and frame.shape[2] == 1:
         frame = frame[:, :, 0]
     elif frame.ndim == 3 and frame.shape[2] == 4:

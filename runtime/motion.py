@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 SMALL_WIDTH = 160  # px: wide enough for a 20-40 px step to be 5-10 px, small enough for < 0.5 ms
+MAX_SMALL_HEIGHT = 4 * SMALL_WIDTH  # a 3000 x 1 frame made a 160 x 480000 one: seconds per read
 JOLT_FRACTION = 0.02  # of the frame's width (12.8 px at 640): past the read's noise and a hover's sway
 TREND_READS = 11  # a gust's 3-5 frames stay a minority
 
@@ -72,14 +73,13 @@ class PictureMotion:
         (dx, dy), response = cv2.phaseCorrelate(previous, small, self._window)
         if not response >= self.min_response:
             return None
-        factor = image.shape[1] / SMALL_WIDTH  # frame px per small px
-        return dx * factor, dy * factor
+        return dx * image.shape[1] / small.shape[1], dy * image.shape[0] / small.shape[0]  # frame px per small px
 
     def _small(self, image: np.ndarray) -> np.ndarray:
         """The frame grey, `SMALL_WIDTH` wide, as float32 in the spare buffer (no allocation per frame)."""
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         h, w = grey.shape[:2]
-        size = (SMALL_WIDTH, max(8, round(h * SMALL_WIDTH / w)))
+        size = (SMALL_WIDTH, min(max(8, round(h * SMALL_WIDTH / w)), MAX_SMALL_HEIGHT))
         small = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
         if self._spare is None or self._spare.shape != small.shape:
             self._spare = np.empty(small.shape, np.float32)

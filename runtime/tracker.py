@@ -50,14 +50,18 @@ class TrackResult:
 
 
 def _check_box(box: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:
+    if isinstance(box, str | bytes | Mapping):  # "1234" unpacked as four digits, a dict as its keys
+        raise InputError(f"init box must be four numbers (x, y, w, h), got {box!r}")
     try:
         x, y, w, h = (float(v) for v in box)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"init box must be four numbers (x, y, w, h), got {box!r}") from None
     if not all(math.isfinite(v) for v in (x, y, w, h)):
         raise InputError(f"init box must be finite, got {box!r}")
     if w <= 0 or h <= 0:
         raise InputError(f"init box has zero or negative size (w={w:g}, h={h:g})")
+    if w < MIN_BOX_SIDE or h < MIN_BOX_SIDE:  # 1e-300 made the crop's context side 0: a ZeroDivisionError
+        raise InputError(f"init box is under {MIN_BOX_SIDE:g} px (w={w:g}, h={h:g})")
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) lies outside the {width}x{height} frame")
     if w > MAX_BOX_FRAMES * width or h > MAX_BOX_FRAMES * height:  # 1e300 overflowed the crop arithmetic
@@ -66,6 +70,7 @@ def _check_box(box: Sequence[float], width: int, height: int) -> tuple[float, fl
     return x, y, w, h
 
 
+MIN_BOX_SIDE = 0.1  # px: a box side smaller than a tenth of a pixel names no target
 MAX_BOX_FRAMES = 4  # an init box may reach past the frame's edges, not be many frames wide
 _TINY = 1e-9  # a non-positive proposed side counts as the largest shrink
 
@@ -103,6 +108,17 @@ def bound_size(
     held = t < 1.0
     t = min(t, 1.0)
     return previous[0] * math.exp(t * u), previous[1] * math.exp(t * v), held
+
+
+def _check_shift(shift: object, limit: float) -> tuple[float, float]:
+    """`look`'s (dx, dy) in crop pixels: two finite numbers, at most the search crop's side each way."""
+    try:
+        dx, dy = (float(v) for v in shift)  # type: ignore[union-attr]
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"shift must be two numbers (dx, dy) in crop pixels, got {shift!r}") from None
+    if not (math.isfinite(dx) and math.isfinite(dy)) or max(abs(dx), abs(dy)) > limit:
+        raise InputError(f"shift must be finite and within ±{limit:g} crop pixels, got {shift!r}")
+    return dx, dy
 
 
 def covers_frame(size: tuple[float, float], width: int, height: int, share: float) -> bool:
@@ -189,7 +205,7 @@ class Tracker:
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame; the search graph runs once."""
         if self._feeds is None:
-            raise RuntimeError("Tracker.update() called before init()")
+            raise InputError("Tracker.update() called before init()")
         t0 = time.perf_counter()
         image = as_image(frame)
         g, p = self.geometry, self.params
@@ -231,10 +247,11 @@ class Tracker:
         the bounds and the lost state, and the tracker's state left as it was. A measuring tool
         (`dadiff-eval box-read`): tracking mixes the network's box error with its own history."""
         if self._feeds is None:
-            raise RuntimeError("Tracker.look() called before init()")
+            raise InputError("Tracker.look() called before init()")
         image = as_image(frame)
         x, y, w, h = _check_box(box, image.shape[1], image.shape[0])
         g, p = self.geometry, self.params
+        shift = _check_shift(shift, g.instance_size)
         kept = self._centre, self._size
         try:
             self._size = (w, h)
@@ -265,5 +282,5 @@ class Tracker:
 
     def _clip_size(self, size: tuple[float, float], img_w: int, img_h: int) -> tuple[float, float]:
         """The released clip: at least `min_size`, never larger than the frame."""
-        low = self.geometry.min_size
-        return max(low, min(size[0], img_w)), max(low, min(size[1], img_h))
+        low = self.geometry.min_size  # then the frame again: a frame under the floor (a 1x1 image) caps it
+        return min(max(low, min(size[0], img_w)), img_w), min(max(low, min(size[1], img_h)), img_h)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from test_runtime_plausible import FRAME, ScriptedBackend
 
-from dadiff.runtime import Tracker
+from dadiff.runtime import InputError, Tracker
 from dadiff.runtime.evaluation.box_read import read_ratios, summarise
 from dadiff.runtime.evaluation.cli import main
 from dadiff.runtime.evaluation.datasets import Dataset, Sequence
@@ -48,7 +48,7 @@ def test_box_read_finds_the_lag_of_a_network_that_stays_at_the_crop_centre(tmp_p
 
 def test_look_before_init_and_a_bad_box_are_refused() -> None:
     tracker = Tracker(ScriptedBackend([0.9], 20.0))
-    with pytest.raises(RuntimeError, match="before init"):
+    with pytest.raises(InputError, match="before init"):
         tracker.look(FRAME, (1, 1, 10, 10))
     tracker.init(FRAME, (100, 100, 40, 40))
     with pytest.raises(ValueError, match="zero or negative size"):

@@ -7,6 +7,7 @@ a clobbered input, a silent run, a usage block).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import subprocess
@@ -189,6 +190,66 @@ def test_a_model_that_answers_nan_is_lost_not_tracking(tmp_path) -> None:
 def test_demo_seed_names_the_option(capsys) -> None:
     assert cli.main(["--demo", "--seed", "-1"]) == 2  # was: "expected non-negative integer", no option named
     assert "argument --seed: expected a non-negative integer, got '-1'" in _one_error(capsys)
+
+
+def _api_tracker(media: dict[str, Path], **kw: object):
+    from dadiff.runtime.tracker import Tracker
+
+    return Tracker.load(media["model"], threads=1, **kw)
+
+
+@pytest.mark.parametrize(("frame", "box", "message"), [
+    (np.zeros((0, 5, 4), np.uint8), (0, 0, 1, 1), "frame is empty"),  # was: cv2.error from cvtColor
+    (np.zeros((120, 160, 3), np.uint8), (10**400, 1, 2, 3), "four numbers"),  # was: OverflowError
+    (np.zeros((120, 160, 3), np.uint8), "1234", "four numbers"),  # was: tracked as (1, 2, 3, 4)
+    (np.zeros((120, 160, 3), np.uint8), b"1234", "four numbers"),  # was: (49, 50, 51, 52)
+    (np.zeros((120, 160, 3), np.uint8), (159.9, 119.9, 1e-300, 1e-300), "under 0.1 px"),  # was: ZeroDivisionError
+])
+def test_api_init_refuses_with_one_line(frame, box, message: str, media) -> None:
+    from dadiff.runtime.errors import InputError
+
+    with pytest.raises(InputError, match=message) as info:
+        _api_tracker(media).init(frame, box)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("overrides", [{"lr": 10**400}, {"lr": True}, "lr=1", [("lr", 1)]])
+def test_api_overrides_are_checked(overrides, media) -> None:
+    from dadiff.runtime.errors import InputError
+
+    with pytest.raises(InputError):  # were: OverflowError, lr = 1.0, AttributeError, AttributeError
+        _api_tracker(media, overrides=overrides)
+
+
+@pytest.mark.parametrize("shift", [(math.nan, 0), (math.inf, 0), (1,), None, "ab", (1e300, 0)])
+def test_api_look_checks_its_shift(shift, media) -> None:
+    from dadiff.runtime.errors import InputError
+
+    tracker = _api_tracker(media)
+    image = np.full((120, 160, 3), 30, np.uint8)
+    tracker.init(image, (40, 40, 20, 15))
+    with pytest.raises(InputError, match="shift must be"):  # were: ValueError, OverflowError, IndexError, ...
+        tracker.look(image, (40, 40, 20, 15), shift)
+
+
+def test_api_box_never_larger_than_a_tiny_frame(media) -> None:
+    tracker = _api_tracker(media)
+    tracker.init(np.full((1, 1, 3), 30, np.uint8), (0, 0, 1, 1))
+    x, y, w, h = tracker.update(np.full((1, 1, 3), 30, np.uint8)).box
+    assert w <= 1 and h <= 1  # was: (-4, -4, 8, 8), the 8 px floor on a 1 px frame
+
+
+def test_motion_read_of_a_tall_thin_frame_stays_small() -> None:
+    from dadiff.runtime.motion import MAX_SMALL_HEIGHT, PictureMotion
+
+    small = PictureMotion(0.1)._small(np.zeros((100_000, 1, 3), np.uint8))
+    assert small.shape == (MAX_SMALL_HEIGHT, 160)  # was: 160 x 16 000 000, gigabytes and seconds a frame
+
+
+def test_demo_refuses_options_it_does_not_apply(tmp_path, capsys) -> None:
+    argv = ["--demo", "--demo-out", str(tmp_path / "d"), "--hp", "lr=0.9", "--output", str(tmp_path / "t.csv")]
+    assert cli.main(argv) == 2  # was: exit 0, the options silently not applied, no t.csv
+    assert "--output, --hp do not apply" in _one_error(capsys)
 
 
 def test_demo_out_naming_a_file_is_one_line(tmp_path, capsys) -> None:

@@ -144,5 +144,5 @@ def test_bad_frames(tracker: Tracker) -> None:
 
 
 def test_update_before_init(model_dir: Path) -> None:
-    with pytest.raises(RuntimeError, match="before init"):
+    with pytest.raises(InputError, match="before init"):
         Tracker.load(model_dir, threads=1).update(np.zeros((36, 48, 3), np.uint8))
