@@ -43,6 +43,9 @@ class UserError(Exception):
 
 
 PROG = "dadiff-export"
+# --calibration-frames: each recorded feed is a 223-255 px float32 crop plus kernels (~0.6-0.8 MB), all held at
+# once; 1e9 used to grow memory until the machine ran out
+MAX_CALIBRATION_FRAMES = 2000
 
 
 def _finite(low: float, high: float | None = None) -> Any:
@@ -62,14 +65,16 @@ def _finite(low: float, high: float | None = None) -> Any:
     return parse
 
 
-def _count(low: int) -> Any:
+def _count(low: int, high: int | None = None) -> Any:
+    """argparse type: an integer >= `low` (and <= `high`)."""
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             value = low - 1
-        if value < low:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}")
+        if value < low or (high is not None and value > high):
+            span = f">= {low}" if high is None else f">= {low} and <= {high}"
+            raise argparse.ArgumentTypeError(f"expected an integer {span}, got {text!r}")
         return value
 
     return parse
@@ -111,8 +116,9 @@ def _add_quantize_options(p: argparse.ArgumentParser) -> None:
                         "training photos)")
     q.add_argument("--calibration-init", metavar="X,Y,W,H",
                    help="target box in the first frame of --calibration when it has no ground-truth file")
-    q.add_argument("--calibration-frames", type=_count(1), default=DEFAULT_CALIBRATION_FRAMES, metavar="N",
-                   help=f"search crops to calibrate on (default {DEFAULT_CALIBRATION_FRAMES})")
+    q.add_argument("--calibration-frames", type=_count(1, MAX_CALIBRATION_FRAMES), default=DEFAULT_CALIBRATION_FRAMES,
+                   metavar="N", help=f"search crops to calibrate on, at most {MAX_CALIBRATION_FRAMES} "
+                                     f"(default {DEFAULT_CALIBRATION_FRAMES})")
     q.add_argument("--eval-sequences", type=_count(1), default=DEFAULT_EVAL_SEQUENCES, metavar="N",
                    help="sequences of the generated night test set used to compare fp32 and int8 "
                         f"(default {DEFAULT_EVAL_SEQUENCES})")

@@ -11,9 +11,10 @@ import pytest
 from test_runtime_plausible import FRAME, ScriptedBackend
 
 from dadiff.runtime import InputError, Tracker
-from dadiff.runtime.evaluation.box_read import read_ratios, summarise
+from dadiff.runtime.evaluation.box_read import box_read, format_box_read, read_ratios, summarise
 from dadiff.runtime.evaluation.cli import main
 from dadiff.runtime.evaluation.datasets import Dataset, Sequence
+from dadiff.runtime.evaluation.evaluate import EvalError
 from dadiff.runtime.evaluation.scenes import write_benchmark
 
 
@@ -80,6 +81,8 @@ def test_box_read_command_prints_one_row_per_shift_and_their_mean(tmp_path, caps
 
 
 @pytest.mark.parametrize(("args", "message"), [(["--shifts", "nan"], "expected a finite number, got 'nan'"),
+                                               (["--shifts", "1e308"], "--shifts: expected a number from -255 to 255"),
+                                               (["--shifts", "250"], "--shifts 250: at most 223 crop px"),
                                                (["--dataset", "/no/such/set"], "/no/such/set")])
 def test_box_read_bad_input_is_one_line(tmp_path, capsys, args: list[str], message: str) -> None:
     argv = ["box-read", "--dataset", str(tmp_path), *args] if args[0] != "--dataset" else ["box-read", *args]
@@ -90,3 +93,29 @@ def test_box_read_bad_input_is_one_line(tmp_path, capsys, args: list[str], messa
     assert status == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("dadiff-eval: error") and message in err[0], err
+
+
+def test_true_boxes_outside_the_frame_are_skipped_and_counted(tmp_path) -> None:
+    """One later box outside the frame (or many frames wide) used to stop the whole run with the tracker's
+    'init box ... lies outside the frame', naming neither sequence nor frame."""
+    frame = tmp_path / "frame.png"
+    cv2.imwrite(str(frame), FRAME)  # 480x360
+    boxes = [[200, 150, 40, 40], [1000, 150, 40, 40], [200, -500, 40, 40], [200, 150, 4000, 40],
+             [float("nan")] * 4, [200, 150, 40, 40]]
+    sequence = Sequence("still", (frame,) * len(boxes), np.array(boxes, dtype=float))
+    dataset = Dataset("one", tmp_path, "otb", (sequence,))
+    reads = box_read(Tracker(ScriptedBackend([0.9], 20.0)), dataset, [0.0])
+    assert reads[0].frames == 1
+    assert "(1 frames, 4 skipped: no true box inside the frame)" in format_box_read(dataset, reads).splitlines()[0]
+
+
+def test_no_frame_after_the_first_is_refused_not_a_table_of_nan(tmp_path) -> None:
+    frame = tmp_path / "frame.png"
+    cv2.imwrite(str(frame), FRAME)
+    tracker = Tracker(ScriptedBackend([0.9], 20.0))
+    one = Sequence("one", (frame,), np.array([[200, 150, 40, 40]], dtype=float))
+    with pytest.raises(EvalError, match="no frames after the first"):
+        read_ratios(tracker, Dataset("one", tmp_path, "otb", (one,)), [0.0])
+    gone = Sequence("gone", (frame,) * 2, np.array([[200, 150, 40, 40], [1000, 150, 40, 40]], dtype=float))
+    with pytest.raises(EvalError, match="all 1 frames after the first were skipped"):
+        read_ratios(tracker, Dataset("gone", tmp_path, "otb", (gone,)), [0.0])

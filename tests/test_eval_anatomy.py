@@ -92,3 +92,36 @@ def test_reported_state_against_the_truth(bench, capsys):
     assert main(["anatomy", "--dataset", str(bench / "set"), str(folder)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "dark.states" in err[0] and "2 states" in err[0]
+
+
+def test_nan_and_inf_true_boxes_are_skipped_not_a_crash(bench, capsys):
+    """UAV123 marks a target out of view with a NaN row: int() of it (or of inf) stopped the run."""
+    truth = bench / "set" / "lit" / "groundtruth_rect.txt"
+    x, y, w, h = BOX
+    truth.write_text(f"{x},{y},{w},{h}\nNaN,NaN,NaN,NaN\ninf,{y},{w},{h}\n{x},{y},{w},{h}\n")
+    assert main(["anatomy", "--dataset", str(bench / "set"), str(bench / "res" / "exact")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "4 frames after the first" in out[0]  # 3 of dark, 1 of lit: the two unknown boxes left out
+    assert out[3].split()[:3] == ["exact", "1.000", "1.000"]
+
+
+@pytest.mark.parametrize("line", ["bogus", "x", ",", "0.5,sleeping", "0.5, tracking"])
+def test_a_malformed_states_line_is_one_line_naming_the_file_and_line(bench, capsys, line):
+    folder = bench / "res" / "exact"
+    write_states(folder, {"lit": ["tracking"] * 3, "dark": ["tracking"] * 3})
+    (folder / "dark.states").write_text(f"1,init\n0.5,tracking\n{line}\n0.5,lost\n")
+    assert main(["anatomy", "--dataset", str(bench / "set"), str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "dark.states: line 3" in err[0] and repr(line) in err[0], err
+
+
+def test_sequences_of_one_frame_are_refused_not_a_table_of_nan(bench, capsys):
+    for name in ("lit", "dark"):
+        truth = bench / "set" / name / "groundtruth_rect.txt"
+        truth.write_text(truth.read_text().splitlines()[0] + "\n")
+        for frame in sorted((bench / "set" / name / "img").iterdir())[1:]:
+            frame.unlink()
+    assert main(["anatomy", "--dataset", str(bench / "set"), str(bench / "res" / "exact")]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert not captured.out and len(err) == 1 and "no frames after the first" in err[0], err

@@ -359,3 +359,50 @@ def test_a_second_fetch_into_the_same_cache_is_refused_while_one_runs(debs, tmp_
         with pytest.raises(LibraryError, match="another fetch is writing"):
             fetch([GENERIC], cache, debs, log=lambda _: None)
     assert len(fetch([GENERIC], cache, debs, log=lambda _: None)) == 3
+
+
+def _small_library(folder: Path, split: str = "train") -> Path:
+    """A one-background library written directly (no .deb): for index and pack checks."""
+    (folder / "images").mkdir(parents=True)
+    (folder / "images" / "b.jpg").write_bytes(_jpeg(_noise(64, 80, 3)))
+    image = {"file": "images/b.jpg", "source": "/b.jpg", "role": "background", "split": split, "width": 80,
+             "height": 64}
+    (folder / "index.json").write_text(json.dumps({"format": 1, "packages": {"pkg": {"licence": "MIT",
+                                                                                      "images": [image]}}}))
+    return folder
+
+
+@pytest.mark.parametrize(("index", "key"), [({"packages": []}, "'packages'"),
+                                            ({"packages": {"pkg": {"licence": "MIT", "images": [{}]}}},
+                                             "'packages.pkg.images[0].file'")])
+def test_a_malformed_index_is_one_line_naming_the_file_and_key(tmp_path, capsys, index, key):
+    (tmp_path / "index.json").write_text(json.dumps(index))
+    for argv in (["data", "list"], ["data", "pack", "--out", str(tmp_path / "pack")]):
+        assert main([*argv, "--cache", str(tmp_path)]) == 2
+        line = _one_error_line(capsys)
+        assert "index.json: not a valid library index" in line and key in line, line
+
+
+@pytest.mark.parametrize(("max_mib", "message"), [("nan", "expected a finite number, got 'nan'"),
+                                                  ("inf", "expected a finite number, got 'inf'"),
+                                                  ("0", "expected a number above 0")])
+def test_pack_budget_must_be_finite_and_positive(tmp_path, capsys, max_mib, message):
+    with pytest.raises(SystemExit) as exit_:
+        main(["data", "pack", "--cache", str(_small_library(tmp_path / "lib")), "--out", str(tmp_path / "p"),
+              "--max-mib", max_mib])
+    assert exit_.value.code == 2
+    line = _one_error_line(capsys)
+    assert "--max-mib" in line and message in line, line
+
+
+def test_pack_refuses_an_empty_result(tmp_path, capsys):
+    """'packed  into P (0.0 MiB)' and exit 0 used to leave an empty pack."""
+    library = str(_small_library(tmp_path / "lib"))
+    assert main(["data", "pack", "--cache", library, "--out", str(tmp_path / "p1"), "--max-mib", "0.0001"]) == 2
+    assert "no image fits in the pack budget of 104 bytes" in _one_error_line(capsys)
+    assert not (tmp_path / "p1").exists()
+    test_only = str(_small_library(tmp_path / "test_only", split="test"))
+    assert main(["data", "pack", "--cache", test_only, "--out", str(tmp_path / "p2")]) == 2
+    assert "no train images to pack" in _one_error_line(capsys)
+    assert main(["data", "pack", "--cache", library, "--out", str(tmp_path / "p3")]) == 0
+    assert "background/train 1" in capsys.readouterr().out

@@ -134,6 +134,8 @@ def test_cli_exports_and_quantizes_a_checkpoint(tmp_path, capsys, lite_checkpoin
     (["--quantize", "int8", "--calibration", "{video}"], "give --calibration-init"),
     (["--quantize", "int8", "--calibration-init", "1,2,3,4"], "applies to --calibration"),
     (["--quantize", "int8", "--calibration-frames", "0"], "--calibration-frames: expected an integer >= 1"),
+    (["--quantize", "int8", "--calibration-frames", "1000000000"], "--calibration-frames: expected an integer >= 1 "
+                                                                    "and <= 2000"),
     (["--calibration", "{folder}"], "applies to --quantize int8 only"),
     (["--quantize", "int8", "--steps", "3"], "applies to checkpoints"),
 ])

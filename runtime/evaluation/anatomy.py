@@ -12,16 +12,19 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from .datasets import Dataset
 from .datasets import Sequence as Clip
+from .evaluate import STATES, EvalError, read_states
 from .metrics import centre_errors, iou
 
 CENTRED = 0.5  # centre error below this share of the target's size sqrt(w * h)
 GREY_EDGES = (0, 8, 15, 30, 60, 256)  # bins of the mean grey level (0-255) inside the true box
+KNOWN_STATES = ("init", "tracking", "uncertain", "lost")  # what `dadiff-eval run` writes after each score
 
 
 @dataclass(frozen=True)
@@ -50,9 +53,28 @@ class Honesty:
     centred_flagged: float
 
 
+def known_frames(gt: np.ndarray) -> np.ndarray:
+    """True where the true box is finite with a positive size: UAV123 marks a target out of view with a NaN
+    row, which names no frame to measure (skipped, as `box-read` skips it), not a lost one."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(gt).all(axis=1) & (gt[:, 2] > 0) & (gt[:, 3] > 0)
+
+
+def _pooled(gts: Sequence[np.ndarray], values: Sequence[np.ndarray]) -> np.ndarray:
+    """Frames 2..N with a known true box of every sequence, in one array (frame 1 is the given box)."""
+    return np.concatenate([np.asarray(v)[1:][known_frames(g)[1:]] for g, v in zip(gts, values, strict=True)])
+
+
+def check_frames(dataset: Dataset) -> None:
+    """Refuse a selection with no known frame after the first: its tables would be all NaN."""
+    if not _pooled([s.boxes for s in dataset.sequences], [s.boxes for s in dataset.sequences]).size:
+        raise EvalError(f"{dataset.path}: no frames after the first with a known target box in "
+                        f"{len(dataset.sequences)} sequences; nothing to measure")
+
+
 def _pooled_centred(gts: Sequence[np.ndarray], preds: Sequence[np.ndarray]) -> np.ndarray:
     """`centred_frames` of frames 2..N of every sequence, in one array (frame 1 is the given box)."""
-    return np.concatenate([centred_frames(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
+    return _pooled(gts, [centred_frames(g, p) for g, p in zip(gts, preds, strict=True)])
 
 
 def _share(mask: np.ndarray) -> float:
@@ -64,14 +86,17 @@ def honesty(
 ) -> Honesty:
     """Pool frames 2..N of every sequence (`states` as `read_states` gives them, one list per sequence)."""
     ok = _pooled_centred(gts, preds)
-    tracking = np.concatenate([np.asarray(s[1:]) == "tracking" for s in states])
+    tracking = _pooled(gts, [np.asarray(s) == "tracking" for s in states])
     return Honesty(name, _share(tracking), _share(~ok[tracking]), _share(~tracking[~ok]), _share(~tracking[ok]))
 
 
 def target_grey(clip: Clip) -> np.ndarray:
-    """Mean grey level inside the true box in each frame; NaN where the box holds no whole pixel."""
+    """Mean grey level inside the true box in each frame; NaN where the box holds no whole pixel or is not
+    known (a NaN or inf row: int() of it raised)."""
     out = np.full(len(clip), np.nan)
     for k, (path, (x, y, w, h)) in enumerate(zip(clip.frames, clip.boxes, strict=False)):
+        if not np.isfinite((x, y, w, h)).all():
+            continue
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if image is None:
             continue
@@ -98,8 +123,8 @@ def grey_bin(grey: np.ndarray) -> np.ndarray:
 def anatomy(name: str, gts: Sequence[np.ndarray], preds: Sequence[np.ndarray], bins: Sequence[np.ndarray]) -> Anatomy:
     """Pool frames 2..N of every sequence (`bins` from `grey_bin`, one array per sequence)."""
     ok = _pooled_centred(gts, preds)
-    overlap = np.concatenate([iou(g, p)[1:] for g, p in zip(gts, preds, strict=True)])
-    where = np.concatenate([b[1:] for b in bins])
+    overlap = _pooled(gts, [iou(g, p) for g, p in zip(gts, preds, strict=True)])
+    where = _pooled(gts, bins)
     by_grey = tuple(float(ok[where == k].mean()) if (where == k).any() else float("nan")
                     for k in range(len(GREY_EDGES) - 1))
     return Anatomy(name, float(ok.mean()), float(overlap[ok].mean()) if ok.any() else float("nan"), by_grey)
@@ -111,7 +136,7 @@ def grey_bins(dataset: Dataset) -> list[np.ndarray]:
 
 
 def format_anatomy(dataset: Dataset, rows: Sequence[Anatomy], bins: Sequence[np.ndarray]) -> str:
-    where = np.concatenate([b[1:] for b in bins])
+    where = _pooled([s.boxes for s in dataset.sequences], bins)
     labels = [f"{lo}-{hi}" if hi < 256 else f">={lo}" for lo, hi in zip(GREY_EDGES[:-1], GREY_EDGES[1:], strict=True)]
     shares = [f"{label} ({(where == k).mean():.0%})" for k, label in enumerate(labels)]
     width = max(8, *(len(r.name) for r in rows))
@@ -131,3 +156,28 @@ def format_honesty(rows: Sequence[Honesty]) -> str:
     lines += [f"{r.name:<{width}}  {r.tracking:8.3f}  {r.tracking_off:15.3f}  {r.off_flagged:15.3f}  "
               f"{r.centred_flagged:19.3f}" for r in rows]
     return "\n".join(lines)
+
+
+def read_checked_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
+    """`read_states`, after checking every line of every `.states` file is `score,state` with a known state:
+    `bogus`, `x` or `,` used to pass and count as a flagged frame."""
+    for seq in dataset.sequences:
+        path = Path(folder) / f"{seq.name}{STATES}"
+        if not path.is_file():
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if not line.strip():
+                continue
+            score, comma, state = line.strip().partition(",")
+            if not comma or state not in KNOWN_STATES or score != score.strip() or not _is_number(score):
+                raise EvalError(f"{path}: line {number}: expected 'score,state' with a number and one of "
+                                f"{', '.join(KNOWN_STATES)}, got {line.strip()!r}")
+    return read_states(dataset, folder)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..tracker import Tracker
+from ..tracker import MAX_BOX_FRAMES, Tracker
 from .datasets import Dataset
-from .evaluate import check_first_box, read_frame
+from .evaluate import EvalError, check_first_box, read_frame
 
 
 @dataclass(frozen=True)
@@ -40,24 +40,48 @@ class BoxRead:
     off: float  # share of reads whose centre is outside the true box
 
 
+def in_frame(box: np.ndarray, width: int, height: int) -> bool:
+    """Whether a later true box names a target in this frame: finite, over a pixel a side, overlapping the
+    frame and at most MAX_BOX_FRAMES frames wide. Others are skipped and counted: one such box used to stop
+    the whole run with the tracker's 'init box ... lies outside the frame'."""
+    if not (np.isfinite(box).all() and box[2] > 1 and box[3] > 1):
+        return False  # OTB/UAV123 mark a target out of view so
+    x, y, w, h = (float(v) for v in box)
+    return x < width and y < height and x + w > 0 and y + h > 0 and w <= MAX_BOX_FRAMES * width \
+        and h <= MAX_BOX_FRAMES * height
+
+
+def frames_after_first(dataset: Dataset) -> int:
+    """Frames 2..N of every sequence, skipped ones included."""
+    return sum(max(0, min(len(s.frames), len(s.boxes)) - 1) for s in dataset.sequences)
+
+
 def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[np.ndarray]:
     """Per shift: (true width, log width ratio, log height ratio, centre offset along the shift in true
     widths, 1 where the centre is outside the true box) per frame after the first of every sequence. Each
     frame is decoded once and read at every shift."""
+    if not frames_after_first(dataset):
+        raise EvalError(f"{dataset.path}: no frames after the first in {len(dataset.sequences)} sequences; "
+                        "nothing to read")
     rows: list[list[tuple[float, float, float, float, float]]] = [[] for _ in shifts]
     for seq in dataset.sequences:
         check_first_box(seq.name, seq.boxes[0])
         tracker.init(read_frame(seq.frames[0]), tuple(seq.boxes[0]))
         for path, box in zip(seq.frames[1:], seq.boxes[1:], strict=False):
             if not (np.isfinite(box).all() and box[2] > 1 and box[3] > 1):
-                continue  # the target is not in the frame (OTB/UAV123 mark it so)
+                continue  # the target is not in the frame (OTB/UAV123 mark it so): no need to decode it
             frame = read_frame(path)
+            if not in_frame(box, frame.shape[1], frame.shape[0]):
+                continue
             for kept, shift in zip(rows, shifts, strict=True):
                 x, y, w, h = tracker.look(frame, tuple(box), (shift, 0.0))
                 dx = (x + w / 2) - (box[0] + (box[2] - 1) / 2)  # the true centre as the tracker places crops
                 dy = (y + h / 2) - (box[1] + (box[3] - 1) / 2)
                 outside = abs(dx) > box[2] / 2 or abs(dy) > box[3] / 2
                 kept.append((box[2], np.log(w / box[2]), np.log(h / box[3]), dx / box[2], float(outside)))
+    if not rows[0]:
+        raise EvalError(f"{dataset.path}: all {frames_after_first(dataset)} frames after the first were skipped "
+                        "(no true box inside the frame); nothing to read")
     return [np.asarray(r, dtype=np.float64).reshape(-1, 5) for r in rows]
 
 
@@ -86,8 +110,9 @@ def format_box_read(dataset: Dataset, reads: Sequence[BoxRead]) -> str:
     """A table: one row per shift and, for several shifts, their mean (what tracking meets on average)."""
     first = reads[0]
     heads = [f"{low:.0f}-{high:.0f} px w / h" for low, high, _, _ in first.thirds]
-    lines = [f"{dataset.name}: the network's box read around the true box, median log(box / true) "
-             f"({first.frames} frames)",
+    skipped = frames_after_first(dataset) - first.frames
+    counted = f"{first.frames} frames" + (f", {skipped} skipped: no true box inside the frame" if skipped else "")
+    lines = [f"{dataset.name}: the network's box read around the true box, median log(box / true) ({counted})",
              f"{'shift (crop px)':<16} {'width':>7} {'height':>7} {'centre':>7} {'off':>6}   "
              + "   ".join(f"{h:>20}" for h in heads)]
 

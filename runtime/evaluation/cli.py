@@ -25,14 +25,14 @@ import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..cli import hp_arg, non_negative_int, positive_int
 from ..errors import InputError, ModelError, OneLineParser
 from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
-from .anatomy import anatomy, format_anatomy, format_honesty, grey_bins, honesty
+from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty, read_checked_states
 from .datasets import Dataset, DatasetError, load_dataset
 from .detection_tracks import LinkSettings, write_detection_benchmark
 from .detector import Detector, detect_video, write_det_txt
@@ -43,7 +43,6 @@ from .evaluate import (
     TrackerScores,
     TrackerUnavailable,
     read_results,
-    read_states,
     result_folders,
     run_tracker,
     score_folder,
@@ -65,14 +64,25 @@ NOTE = (
 )
 
 
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
-    return value
+MAX_SHIFT = 255.0  # box-read --shifts, crop px: the largest shipped search crop's side; 1e308 overflowed crop.py
+MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; nan and inf used to raise ValueError / OverflowError
+
+
+def _bounded(low: float, high: float, *, open_low: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite number in [low, high] (or (low, high] with `open_low`), checked at parse time."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
+        if not ((value > low if open_low else value >= low) and value <= high):
+            span = f"{'above' if open_low else 'from'} {low:g} {'and at most' if open_low else 'to'} {high:g}"
+            raise argparse.ArgumentTypeError(f"expected a number {span}, got '{text}'")
+        return value
+
+    return parse
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -144,10 +154,11 @@ def build_parser() -> argparse.ArgumentParser:
     read = sub.add_parser("box-read", parents=[selection],
                           help="the network's own box around each true box, before the tracker smooths it")
     read.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
-    read.add_argument("--shifts", nargs="+", type=_finite, metavar="PX",
+    read.add_argument("--shifts", nargs="+", type=_bounded(-MAX_SHIFT, MAX_SHIFT), metavar="PX",
                       help="move the search crop's centre this many crop pixels right of the true centre, one read "
                            "per shift (default: every quarter of the model's stride over one stride: 0 4 8 12 at 16; "
-                           "the stride of its points, so for a finer head give its features' cells)")
+                           "the stride of its points, so for a finer head give its features' cells); at most "
+                           f"{MAX_SHIFT:g} either way and the model's search crop")
     read.add_argument("--threads", type=positive_int, help="onnxruntime threads (default: one per physical core)")
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
@@ -294,7 +305,8 @@ def _add_data_parser(sub: argparse._SubParsersAction) -> None:
     pack = actions.add_parser("pack", parents=[cache],
                               help="a small copy of the library (e.g. to train on a lent GPU machine)")
     pack.add_argument("--out", type=Path, required=True, metavar="DIR", help="new or empty folder for the pack")
-    pack.add_argument("--max-mib", type=float, default=40.0, help="size budget in MiB (default: %(default)s)")
+    pack.add_argument("--max-mib", type=_bounded(0, MAX_PACK_MIB, open_low=True), default=40.0,
+                      help=f"size budget in MiB, above 0 and at most {MAX_PACK_MIB:g} (default: %(default)s)")
     pack.add_argument("--split", choices=("train", "all"), default="train",
                       help="which images to pack (default: %(default)s)")
 
@@ -468,10 +480,11 @@ def cmd_score(args: argparse.Namespace) -> int:
 
 def cmd_anatomy(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset).select(args.sequences)
+    check_frames(dataset)
     folders = result_folders(args.dirs, dataset)
     gts = [seq.boxes for seq in dataset.sequences]
     # every result and state file is read and checked before the (slow) pass over the frames
-    runs = [(name, read_results(dataset, folder), read_states(dataset, folder)) for name, folder in folders]
+    runs = [(name, read_results(dataset, folder), read_checked_states(dataset, folder)) for name, folder in folders]
     runs = [(name, [boxes[seq.name] for seq in dataset.sequences], states) for name, boxes, states in runs]
     bins = grey_bins(dataset)
     print(format_anatomy(dataset, [anatomy(name, gts, preds, bins) for name, preds, _ in runs], bins))
@@ -631,6 +644,10 @@ def cmd_box_read(args: argparse.Namespace) -> int:
     tracker = Tracker.load(args.model, threads=args.threads)
     stride = tracker.geometry.stride
     shifts = args.shifts or [stride * k / 4 for k in range(4)]
+    crop = tracker.geometry.instance_size
+    if any(abs(s) > crop for s in shifts):  # checked before the pass over the frames, naming the option
+        raise EvalError(f"--shifts {' '.join(f'{s:g}' for s in shifts)}: at most {crop} crop px either way "
+                        f"(this model's search crop)")
     dataset = load_dataset(args.dataset).select(args.sequences)
     print(format_box_read(dataset, box_read(tracker, dataset, shifts)))
     return 0

@@ -149,10 +149,40 @@ def open_library(root: Path | None = None) -> Library | None:
     if not index.is_file():
         return None
     try:
-        packages = json.loads(index.read_text())["packages"]
-        return _library(root, packages)
+        data = json.loads(index.read_text())
+        _check_index(data)
+        return _library(root, data["packages"])
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise LibraryError(f"{index}: not a valid library index ({exc}); run `dadiff-eval data fetch` again") from None
+
+
+def _check_index(data: object) -> None:
+    """The index's shape, naming the first bad key: `{"packages": []}` used to raise AttributeError."""
+    def need(ok: bool, key: str, what: str) -> None:
+        if not ok:
+            raise ValueError(f"key {key} must be {what}")
+
+    need(isinstance(data, dict), "(top level)", "an object")
+    assert isinstance(data, dict)
+    packages = data.get("packages")
+    need(isinstance(packages, dict), "'packages'", "an object of package name -> entry")
+    assert isinstance(packages, dict)
+    for name, meta in packages.items():
+        key = f"'packages.{name}"
+        need(isinstance(meta, dict), key + "'", "an object")
+        need(isinstance(meta.get("licence"), str), key + ".licence'", "a string")
+        need(isinstance(meta.get("images"), list), key + ".images'", "a list")
+        for k, item in enumerate(meta["images"]):
+            at = f"{key}.images[{k}]"
+            need(isinstance(item, dict), at + "'", "an object")
+            for field in ("file", "source"):
+                need(isinstance(item.get(field), str), f"{at}.{field}'", "a string")
+            need(item.get("role") in ROLES, f"{at}.role'", f"one of {', '.join(ROLES)}")
+            need(item.get("split") in SPLITS, f"{at}.split'", f"one of {', '.join(SPLITS)}")
+            for field in ("width", "height"):
+                value = item.get(field)
+                need(isinstance(value, int) and not isinstance(value, bool) and value > 0, f"{at}.{field}'",
+                     "a positive integer")
 
 
 def _library(root: Path, packages: dict[str, dict]) -> Library:

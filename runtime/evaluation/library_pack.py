@@ -68,11 +68,16 @@ def pack_library(library: Library, out: Path, max_bytes: int, splits: tuple[str,
         raise LibraryError(f"{out}: exists and is not an empty folder; choose a new pack folder")
     if max_bytes <= 0:
         raise LibraryError(f"the pack budget must be positive, got {max_bytes} bytes")
+    order = _interleaved(library, splits)
+    if not order:  # an exit-0 'packed  into ... (0.0 MiB)' used to leave an empty pack
+        raise LibraryError(f"{library.root}: no {' or '.join(splits)} images to pack (nothing written)")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     packages: dict[str, dict] = {}
-    used, counts = 0, {}
-    for n, item in enumerate(_interleaved(library, splits)):
+    used, counts, smallest = 0, {}, max_bytes + 1
+    for n, item in enumerate(order):
         data, suffix, (width, height) = _encode(item)
+        smallest = min(smallest, len(data))
         if used + len(data) > max_bytes:
             continue  # a smaller image further on may still fit
         rel = Path("images") / item.package / f"{n:05d}{suffix}"
@@ -83,5 +88,10 @@ def pack_library(library: Library, out: Path, max_bytes: int, splits: tuple[str,
         entry["images"].append({"file": str(rel), "source": item.source, "role": item.role, "split": item.split,
                                 "width": width, "height": height})
         counts[f"{item.role}/{item.split}"] = counts.get(f"{item.role}/{item.split}", 0) + 1
+    if not used:
+        if created:
+            out.rmdir()
+        raise LibraryError(f"no image fits in the pack budget of {max_bytes} bytes (the smallest takes {smallest}); "
+                           "raise --max-mib (nothing written)")
     (out / "index.json").write_text(json.dumps({"format": FORMAT, "packages": packages}, indent=1) + "\n")
     return {**counts, "bytes": used}
