@@ -21,23 +21,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from dadiff.runtime.argtypes import int_in
+from dadiff.runtime.argtypes import float_in, int_in
 
 PROG = "dadiff-run"
-
-
-def _float_in(low: float, high: float, *, open_low: bool = False) -> Any:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        ok = math.isfinite(value) and (value > low if open_low else value >= low) and value <= high
-        if not ok:
-            raise argparse.ArgumentTypeError(f"expected a number from {low:g} to {high:g}, got {text!r}")
-        return value
-
-    return parse
 
 
 ALLOWED_DEFAULT = frozenset({255, 245})  # QGroundControl, MAVSDK (camera.DEFAULT_ALLOWED; no pymavlink here)
@@ -143,7 +129,7 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--tracking-rate",
-        type=_float_in(0, 50),
+        type=float_in(0, 50),
         default=10.0,
         metavar="HZ",
         help="CAMERA_TRACKING_IMAGE_STATUS rate while tracking (default 10; 0: only when asked); "
@@ -166,7 +152,7 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--loop", action="store_true", help="with --mavlink, play a video file again at its end")
     g.add_argument(
         "--link-timeout",
-        type=_float_in(0.5, 600),
+        type=float_in(0.5, 600),
         default=5.0,
         metavar="S",
         help="reopen a serial or TCP link after this long without a message (default 5; UDP links stay "
@@ -183,36 +169,36 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
         "centred and at its starting size, only while armed in ArduCopter GUIDED or PX4 OFFBOARD; gimbal: "
         "point the gimbal at the target through the MAVLink gimbal manager (takes primary control)",
     )
-    f.add_argument("--follow-rate", type=_float_in(10, 20), default=15.0, metavar="HZ",
+    f.add_argument("--follow-rate", type=float_in(10, 20), default=15.0, metavar="HZ",
                    help="setpoint rate, 10-20 (default 15)")
-    f.add_argument("--max-speed", type=_float_in(0, 20, open_low=True), default=3.0, metavar="M/S",
+    f.add_argument("--max-speed", type=float_in(0, 20, open_low=True), default=3.0, metavar="M/S",
                    help="horizontal speed limit (default 3)")
-    f.add_argument("--max-climb", type=_float_in(0, 10, open_low=True), default=1.0, metavar="M/S",
+    f.add_argument("--max-climb", type=float_in(0, 10, open_low=True), default=1.0, metavar="M/S",
                    help="vertical speed limit with --follow-altitude (default 1)")
-    f.add_argument("--max-yaw-rate", type=_float_in(0, 360, open_low=True), default=45.0, metavar="DEG/S",
+    f.add_argument("--max-yaw-rate", type=float_in(0, 360, open_low=True), default=45.0, metavar="DEG/S",
                    help="yaw rate limit (default 45)")
-    f.add_argument("--max-accel", type=_float_in(0, 20, open_low=True), default=2.0, metavar="M/S2",
+    f.add_argument("--max-accel", type=float_in(0, 20, open_low=True), default=2.0, metavar="M/S2",
                    help="acceleration limit (default 2)")
     f.add_argument(
         "--follow-altitude", action="store_true", help="also climb or descend to centre the target (default: hold)"
     )
-    f.add_argument("--yaw-gain", type=_float_in(0, 10), default=1.0,
+    f.add_argument("--yaw-gain", type=float_in(0, 10), default=1.0,
                    help="rad/s per unit horizontal error (default 1)")
-    f.add_argument("--lateral-gain", type=_float_in(0, 10), default=0.0,
+    f.add_argument("--lateral-gain", type=float_in(0, 10), default=0.0,
                    help="m/s per unit horizontal error (default 0)")
-    f.add_argument("--forward-gain", type=_float_in(0, 20), default=2.0,
+    f.add_argument("--forward-gain", type=float_in(0, 20), default=2.0,
                    help="m/s per unit log-size error (default 2)")
-    f.add_argument("--vertical-gain", type=_float_in(0, 10), default=1.0,
+    f.add_argument("--vertical-gain", type=float_in(0, 10), default=1.0,
                    help="m/s per unit vertical error (default 1)")
     f.add_argument(
-        "--gimbal-rate", type=_float_in(10, 50), default=20.0, metavar="HZ", help="gimbal setpoint rate (default 20)"
+        "--gimbal-rate", type=float_in(10, 50), default=20.0, metavar="HZ", help="gimbal setpoint rate (default 20)"
     )
     f.add_argument(
-        "--gimbal-gain", type=_float_in(0, 10, open_low=True), default=1.0,
+        "--gimbal-gain", type=float_in(0, 10, open_low=True), default=1.0,
         help="gimbal rad/s per unit offset (default 1)",
     )
     f.add_argument(
-        "--max-gimbal-rate", type=_float_in(0, 360, open_low=True), default=60.0, metavar="DEG/S",
+        "--max-gimbal-rate", type=float_in(0, 360, open_low=True), default=60.0, metavar="DEG/S",
         help="gimbal pitch and yaw rate limit (default 60)",
     )  # fmt: skip
     f.add_argument(

@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
+from ..argtypes import float_in
 from ..cli import hp_arg, non_negative_int, positive_int
 from ..errors import InputError, ModelError, OneLineParser
 from ..outputs import inside_folder, same_file
@@ -66,23 +66,6 @@ NOTE = (
 
 MAX_SHIFT = 255.0  # box-read --shifts, crop px: the largest shipped search crop's side; 1e308 overflowed crop.py
 MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; nan and inf used to raise ValueError / OverflowError
-
-
-def _bounded(low: float, high: float, *, open_low: bool = False) -> Callable[[str], float]:
-    """argparse type: a finite number in [low, high] (or (low, high] with `open_low`), checked at parse time."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
-        if not ((value > low if open_low else value >= low) and value <= high):
-            span = f"{'above' if open_low else 'from'} {low:g} {'and at most' if open_low else 'to'} {high:g}"
-            raise argparse.ArgumentTypeError(f"expected a number {span}, got '{text}'")
-        return value
-
-    return parse
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -154,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     read = sub.add_parser("box-read", parents=[selection],
                           help="the network's own box around each true box, before the tracker smooths it")
     read.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
-    read.add_argument("--shifts", nargs="+", type=_bounded(-MAX_SHIFT, MAX_SHIFT), metavar="PX",
+    read.add_argument("--shifts", nargs="+", type=float_in(-MAX_SHIFT, MAX_SHIFT), metavar="PX",
                       help="move the search crop's centre this many crop pixels right of the true centre, one read "
                            "per shift (default: every quarter of the model's stride over one stride: 0 4 8 12 at 16; "
                            "the stride of its points, so for a finer head give its features' cells); at most "
@@ -305,7 +288,7 @@ def _add_data_parser(sub: argparse._SubParsersAction) -> None:
     pack = actions.add_parser("pack", parents=[cache],
                               help="a small copy of the library (e.g. to train on a lent GPU machine)")
     pack.add_argument("--out", type=Path, required=True, metavar="DIR", help="new or empty folder for the pack")
-    pack.add_argument("--max-mib", type=_bounded(0, MAX_PACK_MIB, open_low=True), default=40.0,
+    pack.add_argument("--max-mib", type=float_in(0, MAX_PACK_MIB, open_low=True), default=40.0,
                       help=f"size budget in MiB, above 0 and at most {MAX_PACK_MIB:g} (default: %(default)s)")
     pack.add_argument("--split", choices=("train", "all"), default="train",
                       help="which images to pack (default: %(default)s)")
