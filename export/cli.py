@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dadiff.models import ModelNotFoundError, resolve
+from dadiff.runtime.config import GEOMETRY_LIMITS
 from dadiff.runtime.errors import OneLineParser
 from dadiff.runtime.sources import SourceError, open_source, parse_box
 
-from .config import FAMILIES, HP_PRESETS, MAX_MIN_SIZE
+from .config import FAMILIES, HP_PRESETS
 from .defaults import (
     DEFAULT_BENCH_RUNS,
     DEFAULT_CALIBRATION_FRAMES,
@@ -43,6 +44,7 @@ class UserError(Exception):
 
 
 PROG = "dadiff-export"
+MAX_MIN_SIZE = GEOMETRY_LIMITS["min_size"]  # the runtime's bound: one a model's metadata may hold
 # --calibration-frames: each recorded feed is a 223-255 px float32 crop plus kernels (~0.6-0.8 MB), all held at
 # once; 1e9 used to grow memory until the machine ran out
 MAX_CALIBRATION_FRAMES = 2000

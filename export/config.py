@@ -18,10 +18,6 @@ FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS = 4, 40
 # Output stride of each trunk: stem 2 x each subsampling block (tests/test_export_bad_input.py checks the Lite0
 # ones against the trunks). The tracker's stride is this over head_upsample; another one decodes boxes wrongly.
 BACKBONE_STRIDES = {"resnet50-atrous": 8, "efficientnet-lite0": 8, "efficientnet-lite0-s16": 16}
-# Upper bounds of the stored crop settings, far past any model's (released: context 0.5, floor 10 px) and far
-# below the values that overflowed the runtime's crop arithmetic (1e308 made every window infinite).
-MAX_CONTEXT_AMOUNT = 10.0
-MAX_MIN_SIZE = 1000.0
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
 HP_PRESETS: dict[str, dict[str, float]] = {
@@ -238,19 +234,20 @@ def _check_tracker_fields(tr: TrackerConfig) -> None:
         value = getattr(tr, name)
         if not _is_int(value):
             raise ValueError(f"'tracker.{name}' is {value!r}; expected an integer")
-    for name, most in (("context_amount", MAX_CONTEXT_AMOUNT), ("min_size", MAX_MIN_SIZE)):
+    # torch-free: the runtime's bounds on the crop settings and the keys it reads from a preset
+    from dadiff.runtime.config import GEOMETRY_LIMITS, TUNABLE_KEYS
+
+    for name in ("context_amount", "min_size"):
         value = getattr(tr, name)
         if not _is_number(value):
             raise ValueError(f"'tracker.{name}' is {value!r}; expected a number")
-        if value > most:  # negative ones: the runtime's checks below
-            raise ValueError(f"'tracker.{name}' is {value!r}; expected at most {most:g}")
+        if value > GEOMETRY_LIMITS[name]:  # negative ones: the runtime's checks below
+            raise ValueError(f"'tracker.{name}' is {value!r}; expected at most {GEOMETRY_LIMITS[name]:g}")
     if not isinstance(tr.hp_presets, dict) or not all(isinstance(v, dict) for v in tr.hp_presets.values()):
         raise ValueError("'tracker.hp_presets' must map preset names to tables")
     if tr.default_preset not in tr.hp_presets:
         known = ", ".join(sorted(tr.hp_presets)) or "none"
         raise ValueError(f"'tracker.default_preset' is {tr.default_preset!r}; the presets are {known}")
-    from dadiff.runtime.config import TUNABLE_KEYS  # torch-free: the keys the runtime reads from a preset
-
     for name, table in tr.hp_presets.items():
         for key in ("lr", "penalty_k", "window_influence"):
             if not _is_number(table.get(key)):

@@ -141,7 +141,7 @@ def _meta_number(meta: Mapping[str, str], key: str, source: str, integer: bool =
 
 # Far past any model's values (released: 127 / 255 px crops, context 0.5, floor 10 px) and far below the sizes
 # that overflowed the crop arithmetic (a 1e308 floor or context made every window infinite).
-_GEOMETRY_LIMITS = {"exemplar_size": 4096, "instance_size": 4096, "score_size": 4096, "context_amount": 10.0,
+GEOMETRY_LIMITS = {"exemplar_size": 4096, "instance_size": 4096, "score_size": 4096, "context_amount": 10.0,
                     "min_size": 1000.0}
 
 
@@ -165,7 +165,7 @@ def parse_geometry(meta: Mapping[str, str], source: str) -> Geometry:
     for key in ("context_amount", "min_size"):
         if values[key] < 0:
             raise ModelError(f"{source}: metadata key '{key}' must not be negative, got {meta[key]!r}")
-    for key, most in _GEOMETRY_LIMITS.items():
+    for key, most in GEOMETRY_LIMITS.items():
         if values[key] > most:
             raise ModelError(f"{source}: metadata key '{key}' is {meta[key]!r}, expected at most {most:g}")
     for key in ("stride", "point_origin"):  # a grid larger than its own search crop cannot be this model's
