@@ -220,10 +220,14 @@ def image_dir(folder: Path) -> Path:
     return folder / "img" if (folder / "img").is_dir() else folder
 
 
+def image_files(folder: Path) -> list[Path]:
+    """A sequence folder's frames, in natural order (1, 2, ..., 10)."""
+    return sorted((p for p in image_dir(folder).iterdir() if p.suffix.lower() in IMAGE_EXTS), key=_natural_key)
+
+
 def folder_inputs(folder: Path) -> list[Path]:
     """The files a FolderSource reads: its frames and its ground truth (what an output must never replace)."""
-    frames = [p for p in image_dir(folder).iterdir() if p.suffix.lower() in IMAGE_EXTS]
-    return frames + [folder / name for name in GROUNDTRUTH_FILES if (folder / name).is_file()]
+    return image_files(folder) + [folder / name for name in GROUNDTRUTH_FILES if (folder / name).is_file()]
 
 
 class FolderSource:
@@ -236,10 +240,9 @@ class FolderSource:
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
-        images = image_dir(folder)
-        self.files = sorted((p for p in images.iterdir() if p.suffix.lower() in IMAGE_EXTS), key=_natural_key)
+        self.files = image_files(folder)
         if not self.files:
-            raise SourceError(f"{folder}: no image files found (looked in {images})")
+            raise SourceError(f"{folder}: no image files found (looked in {image_dir(folder)})")
         self.length: int | None = len(self.files)
         self.skipped = 0
         self.init_box: tuple[float, float, float, float] | None = None

@@ -49,7 +49,8 @@ class TrackResult:
     confidence: float | None = None
 
 
-def _check_box(box: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:
+def check_box(box: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:
+    """(x, y, w, h) as floats, or InputError naming why this box names no target in a width x height frame."""
     if isinstance(box, str | bytes | Mapping):  # "1234" unpacked as four digits, a dict as its keys
         raise InputError(f"init box must be four numbers (x, y, w, h), got {box!r}")
     try:
@@ -191,7 +192,7 @@ class Tracker:
         As in the released tracker the centre is x + (w − 1)/2 (spec 8.1).
         """
         image = as_image(frame)
-        x, y, w, h = _check_box(box, image.shape[1], image.shape[0])
+        x, y, w, h = check_box(box, image.shape[1], image.shape[0])
         self._centre = (x + (w - 1) / 2, y + (h - 1) / 2)
         self._size = (w, h)
         self._start = (max(w, self.geometry.min_size), max(h, self.geometry.min_size))  # as the first clip makes it
@@ -249,7 +250,7 @@ class Tracker:
         if self._feeds is None:
             raise InputError("Tracker.look() called before init()")
         image = as_image(frame)
-        x, y, w, h = _check_box(box, image.shape[1], image.shape[0])
+        x, y, w, h = check_box(box, image.shape[1], image.shape[0])
         g, p = self.geometry, self.params
         shift = _check_shift(shift, g.instance_size)
         kept = self._centre, self._size

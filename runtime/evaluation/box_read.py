@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..tracker import MAX_BOX_FRAMES, Tracker
+from ..errors import InputError
+from ..tracker import Tracker, check_box
 from .datasets import Dataset
 from .evaluate import EvalError, check_first_box, read_frame
 
@@ -40,15 +41,22 @@ class BoxRead:
     off: float  # share of reads whose centre is outside the true box
 
 
+def marks_a_target(box: np.ndarray) -> bool:
+    """Finite and over a pixel a side: OTB/UAV123 mark a target out of view with NaN or zero rows."""
+    return bool(np.isfinite(box).all() and box[2] > 1 and box[3] > 1)
+
+
 def in_frame(box: np.ndarray, width: int, height: int) -> bool:
-    """Whether a later true box names a target in this frame: finite, over a pixel a side, overlapping the
-    frame and at most MAX_BOX_FRAMES frames wide. Others are skipped and counted: one such box used to stop
-    the whole run with the tracker's 'init box ... lies outside the frame'."""
-    if not (np.isfinite(box).all() and box[2] > 1 and box[3] > 1):
-        return False  # OTB/UAV123 mark a target out of view so
-    x, y, w, h = (float(v) for v in box)
-    return x < width and y < height and x + w > 0 and y + h > 0 and w <= MAX_BOX_FRAMES * width \
-        and h <= MAX_BOX_FRAMES * height
+    """Whether a later true box names a target in this frame, as the tracker checks a box it is given
+    (`check_box`). Others are skipped and counted: one such box used to stop the whole run with the
+    tracker's 'init box ... lies outside the frame'."""
+    if not marks_a_target(box):
+        return False
+    try:
+        check_box(box, width, height)
+    except InputError:
+        return False
+    return True
 
 
 def frames_after_first(dataset: Dataset) -> int:
@@ -68,8 +76,8 @@ def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> 
         check_first_box(seq.name, seq.boxes[0])
         tracker.init(read_frame(seq.frames[0]), tuple(seq.boxes[0]))
         for path, box in zip(seq.frames[1:], seq.boxes[1:], strict=False):
-            if not (np.isfinite(box).all() and box[2] > 1 and box[3] > 1):
-                continue  # the target is not in the frame (OTB/UAV123 mark it so): no need to decode it
+            if not marks_a_target(box):
+                continue  # no need to decode the frame
             frame = read_frame(path)
             if not in_frame(box, frame.shape[1], frame.shape[0]):
                 continue
