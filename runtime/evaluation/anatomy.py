@@ -12,19 +12,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from .datasets import Dataset
 from .datasets import Sequence as Clip
-from .evaluate import STATES, EvalError, read_states
+from .evaluate import EvalError
 from .metrics import centre_errors, iou
 
 CENTRED = 0.5  # centre error below this share of the target's size sqrt(w * h)
 GREY_EDGES = (0, 8, 15, 30, 60, 256)  # bins of the mean grey level (0-255) inside the true box
-KNOWN_STATES = ("init", "tracking", "uncertain", "lost")  # what `dadiff-eval run` writes after each score
 
 
 @dataclass(frozen=True)
@@ -156,28 +154,3 @@ def format_honesty(rows: Sequence[Honesty]) -> str:
     lines += [f"{r.name:<{width}}  {r.tracking:8.3f}  {r.tracking_off:15.3f}  {r.off_flagged:15.3f}  "
               f"{r.centred_flagged:19.3f}" for r in rows]
     return "\n".join(lines)
-
-
-def read_checked_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
-    """`read_states`, after checking every line of every `.states` file is `score,state` with a known state:
-    `bogus`, `x` or `,` used to pass and count as a flagged frame."""
-    for seq in dataset.sequences:
-        path = Path(folder) / f"{seq.name}{STATES}"
-        if not path.is_file():
-            continue
-        for number, line in enumerate(path.read_text().splitlines(), 1):
-            if not line.strip():
-                continue
-            score, comma, state = line.strip().partition(",")
-            if not comma or state not in KNOWN_STATES or score != score.strip() or not _is_number(score):
-                raise EvalError(f"{path}: line {number}: expected 'score,state' with a number and one of "
-                                f"{', '.join(KNOWN_STATES)}, got {line.strip()!r}")
-    return read_states(dataset, folder)
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True

@@ -32,7 +32,7 @@ from ..cli import hp_arg, non_negative_int, positive_int
 from ..errors import InputError, ModelError, OneLineParser
 from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
-from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty, read_checked_states
+from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
 from .datasets import Dataset, DatasetError, load_dataset
 from .detection_tracks import LinkSettings, write_detection_benchmark
 from .detector import Detector, detect_video, write_det_txt
@@ -43,6 +43,7 @@ from .evaluate import (
     TrackerScores,
     TrackerUnavailable,
     read_results,
+    read_states,
     result_folders,
     run_tracker,
     score_folder,
@@ -467,7 +468,7 @@ def cmd_anatomy(args: argparse.Namespace) -> int:
     folders = result_folders(args.dirs, dataset)
     gts = [seq.boxes for seq in dataset.sequences]
     # every result and state file is read and checked before the (slow) pass over the frames
-    runs = [(name, read_results(dataset, folder), read_checked_states(dataset, folder)) for name, folder in folders]
+    runs = [(name, read_results(dataset, folder), read_states(dataset, folder)) for name, folder in folders]
     runs = [(name, [boxes[seq.name] for seq in dataset.sequences], states) for name, boxes, states in runs]
     bins = grey_bins(dataset)
     print(format_anatomy(dataset, [anatomy(name, gts, preds, bins) for name, preds, _ in runs], bins))

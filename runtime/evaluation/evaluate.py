@@ -29,6 +29,7 @@ from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
 STATES = ".states"  # suffix of the per-frame score,state file beside each result file
+KNOWN_STATES = ("init", "tracking", "uncertain", "lost")  # what the run loop writes after each score
 
 
 class EvalError(Exception):
@@ -199,17 +200,40 @@ def _number(value: float) -> str:
 
 def read_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
     """The state of every frame of every sequence in `folder`, or None where any `.states` file is missing
-    (runs from before they were written, other tools' results)."""
-    out = {}
+    (runs from before they were written, other tools' results). Every file that is there is checked line by
+    line first (`bogus`, `x` or `,` used to pass and count as a flagged frame)."""
+    present = {}
     for seq in dataset.sequences:
         path = Path(folder) / f"{seq.name}{STATES}"
-        if not path.is_file():
+        if path.is_file():
+            lines = [line.strip() for line in path.read_text().splitlines()]
+            present[seq.name] = (path, [_state(path, n, line) for n, line in enumerate(lines, 1) if line])
+    out = {}
+    for seq in dataset.sequences:
+        if seq.name not in present:
             return None
-        lines = path.read_text().split()
-        if len(lines) != len(seq):
-            raise EvalError(f"{path}: {len(lines)} states, but {seq.name} has {len(seq)} ground-truth frames")
-        out[seq.name] = [line.rpartition(",")[2] for line in lines]
+        path, states = present[seq.name]
+        if len(states) != len(seq):
+            raise EvalError(f"{path}: {len(states)} states, but {seq.name} has {len(seq)} ground-truth frames")
+        out[seq.name] = states
     return out
+
+
+def _state(path: Path, number: int, line: str) -> str:
+    """The state of one `score,state` line, or EvalError naming the file and line."""
+    score, comma, state = line.partition(",")
+    if not (comma and state in KNOWN_STATES and score == score.strip() and _is_float(score)):
+        raise EvalError(f"{path}: line {number}: expected 'score,state' with a number and one of "
+                        f"{', '.join(KNOWN_STATES)}, got {line!r}")
+    return state
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def read_result(path: Path) -> np.ndarray:
