@@ -4,6 +4,7 @@ smoothing, and the state untouched; the summary by width thirds; the command on 
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -67,6 +68,15 @@ def test_summary_is_the_median_log_ratio_overall_and_by_thirds_of_the_true_width
     assert [round(t[2], 3) for t in read.thirds] == [0.2, 0.1, -0.1]
     assert [round(t[3], 3) for t in read.thirds] == [-0.2, -0.1, 0.1]
     assert math.isclose(read.thirds[0][0], 10) and math.isclose(read.thirds[2][1], 99)
+
+
+def test_a_width_third_without_frames_prints_a_dash_not_nan() -> None:
+    rows = np.array([[20.0, 0.1, 0.0, 0.0, 0.0]] * 3)  # one width only: the first two thirds hold no frame
+    reads = [summarise(0.0, rows), summarise(8.0, rows)]
+    one_sequence = SimpleNamespace(frames=[0] * 4, boxes=[0] * 4)  # 3 frames after the first
+    table = format_box_read(SimpleNamespace(name="one", sequences=[one_sequence]), reads)
+    assert "nan" not in table and table.count(" -") >= 6
+    assert "+0.100 / +0.000" in table
 
 
 def test_box_read_command_prints_one_row_per_shift_and_their_mean(tmp_path, capsys) -> None:

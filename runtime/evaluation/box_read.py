@@ -126,7 +126,7 @@ def format_box_read(dataset: Dataset, reads: Sequence[BoxRead]) -> str:
 
     def row(label: str, width: float, height: float, centre: float, off: float,
             thirds: Sequence[tuple[float, float]]) -> str:
-        cells = "   ".join(f"{f'{w:+.3f} / {h:+.3f}':>20}" for w, h in thirds)
+        cells = "   ".join(f"{_pair(w, h):>20}" for w, h in thirds)
         return f"{label:<16} {width:>+7.3f} {height:>+7.3f} {centre:>+7.3f} {off:>6.1%}   {cells}"
 
     for r in reads:
@@ -137,3 +137,8 @@ def format_box_read(dataset: Dataset, reads: Sequence[BoxRead]) -> str:
         lines.append(row("mean", *(float(np.mean([getattr(r, k) for r in reads]))
                                    for k in ("width", "height", "centre", "off")), thirds))
     return "\n".join(lines)
+
+
+def _pair(width: float, height: float) -> str:
+    """A width-third's cell; '-' where the third holds no frame (a handful of frames, many of one width)."""
+    return f"{width:+.3f} / {height:+.3f}" if np.isfinite(width) else "-"
