@@ -7,14 +7,14 @@ quantised as well: export/quantize.py.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import tempfile
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from dadiff.models import ModelNotFoundError, resolve
+from dadiff.runtime.argtypes import float_in, int_in
 from dadiff.runtime.config import GEOMETRY_LIMITS
 from dadiff.runtime.errors import OneLineParser
 from dadiff.runtime.sources import SourceError, open_source, parse_box
@@ -27,6 +27,7 @@ from .defaults import (
     DEFAULT_EVAL_SEQUENCES,
     DEFAULT_OPSET,
     DEFAULT_RECIPE,
+    MAX_CALIBRATION_FRAMES,
     PARITY_TOLERANCE,
     PRECISIONS,
     SUPPORTED_OPSETS,
@@ -45,41 +46,6 @@ class UserError(Exception):
 
 PROG = "dadiff-export"
 MAX_MIN_SIZE = GEOMETRY_LIMITS["min_size"]  # the runtime's bound: one a model's metadata may hold
-# --calibration-frames: each recorded feed is a 223-255 px float32 crop plus kernels (~0.6-0.8 MB), all held at
-# once; 1e9 used to grow memory until the machine ran out
-MAX_CALIBRATION_FRAMES = 2000
-
-
-def _finite(low: float, high: float | None = None) -> Any:
-    """argparse type: a finite number >= `low` (and <= `high`). Tolerance >= 0: nan would switch the parity gate
-    off, a negative one fail it late; box side >= 1: the tracker divides by it, and at most MAX_MIN_SIZE: 1e308
-    overflowed the runtime's crop arithmetic."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not math.isfinite(value) or value < low or (high is not None and value > high):
-            span = f">= {low:g}" if high is None else f"in {low:g}..{high:g}"
-            raise argparse.ArgumentTypeError(f"expected a finite number {span}, got {text!r}")
-        return value
-
-    return parse
-
-
-def _count(low: int, high: int | None = None) -> Any:
-    """argparse type: an integer >= `low` (and <= `high`)."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = low - 1
-        if value < low or (high is not None and value > high):
-            span = f">= {low}" if high is None else f">= {low} and <= {high}"
-            raise argparse.ArgumentTypeError(f"expected an integer {span}, got {text!r}")
-        return value
-
-    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,10 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="output model folder (default: ./<name>; ./<name>-int8 with --quantize)")
     p.add_argument("--name", help="model name stored in the metadata (default: the checkpoint's file stem)")
     p.add_argument("--steps", type=int, help="DDIM steps K to unroll, 1..20 (default: the checkpoint's, 2)")
-    p.add_argument("--search-size", type=_count(1), metavar="PX",
+    p.add_argument("--search-size", type=int_in(1), metavar="PX",
                    help="search crop side the graphs take, the trained size or smaller by a multiple of twice the "
                         "stride (dadiff-mobile: 255 trained, 223, 191, 159; default: the trained size)")
-    p.add_argument("--min-size", type=_finite(1, MAX_MIN_SIZE), metavar="PX",
+    # box side >= 1: the tracker divides by it; at most MAX_MIN_SIZE: 1e308 overflowed the runtime's crop arithmetic
+    p.add_argument("--min-size", type=float_in(1, MAX_MIN_SIZE), metavar="PX",
                    help=f"smallest box side the runtime keeps, in frame pixels, 1..{MAX_MIN_SIZE:g}; it also sets how "
                         "far the crops magnify a tiny target (metadata min_size; default: the checkpoint's, 10 as "
                         "released)")
@@ -104,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", metavar="NAME",
                    help="hyper-parameter preset the runtime uses by default, one of the checkpoint's "
                         f"(the released ones: {', '.join(sorted(HP_PRESETS))}; default: the checkpoint's)")
-    p.add_argument("--tolerance", type=_finite(0), default=PARITY_TOLERANCE,
+    # finite and >= 0: nan would switch the parity gate off, a negative tolerance fail it late
+    p.add_argument("--tolerance", type=float_in(0), default=PARITY_TOLERANCE,
                    help=f"max-abs torch/onnxruntime difference allowed, >= 0 (default {PARITY_TOLERANCE:g})")
     _add_quantize_options(p)
     return p
@@ -118,17 +86,17 @@ def _add_quantize_options(p: argparse.ArgumentParser) -> None:
                         "training photos)")
     q.add_argument("--calibration-init", metavar="X,Y,W,H",
                    help="target box in the first frame of --calibration when it has no ground-truth file")
-    q.add_argument("--calibration-frames", type=_count(1, MAX_CALIBRATION_FRAMES), default=DEFAULT_CALIBRATION_FRAMES,
+    q.add_argument("--calibration-frames", type=int_in(1, MAX_CALIBRATION_FRAMES), default=DEFAULT_CALIBRATION_FRAMES,
                    metavar="N", help=f"search crops to calibrate on, at most {MAX_CALIBRATION_FRAMES} "
                                      f"(default {DEFAULT_CALIBRATION_FRAMES})")
-    q.add_argument("--eval-sequences", type=_count(1), default=DEFAULT_EVAL_SEQUENCES, metavar="N",
+    q.add_argument("--eval-sequences", type=int_in(1), default=DEFAULT_EVAL_SEQUENCES, metavar="N",
                    help="sequences of the generated night test set used to compare fp32 and int8 "
                         f"(default {DEFAULT_EVAL_SEQUENCES})")
-    q.add_argument("--eval-frames", type=_count(2), default=DEFAULT_EVAL_FRAMES, metavar="N",
+    q.add_argument("--eval-frames", type=int_in(2), default=DEFAULT_EVAL_FRAMES, metavar="N",
                    help=f"frames per evaluation sequence (default {DEFAULT_EVAL_FRAMES})")
     q.add_argument("--recipe", default=DEFAULT_RECIPE,
                    help=f"which parts stay in float (default {DEFAULT_RECIPE}; see export/quantize.py RECIPES)")
-    q.add_argument("--bench-runs", type=_count(0), default=DEFAULT_BENCH_RUNS, metavar="N",
+    q.add_argument("--bench-runs", type=int_in(0), default=DEFAULT_BENCH_RUNS, metavar="N",
                    help=f"search-graph runs per precision for the latency comparison, 0 to skip "
                         f"(default {DEFAULT_BENCH_RUNS})")
     q.add_argument("--reduce-range", action=argparse.BooleanOptionalAction, default=None,

@@ -48,6 +48,7 @@ from .defaults import (
     DEFAULT_EVAL_FRAMES,
     DEFAULT_EVAL_SEQUENCES,
     DEFAULT_RECIPE,
+    MAX_CALIBRATION_FRAMES,
 )
 from .onnx_export import SEARCH_FILE, TEMPLATE_FILE, ExportError, random_ops, staging_folder
 
@@ -356,6 +357,8 @@ class QuantizeSettings:
                                  ("eval frames", self.eval_frames, 2), ("bench runs", self.bench_runs, 0)):
             if value < low:
                 raise QuantizeError(f"{name} must be at least {low}, got {value}")
+        if self.frames > MAX_CALIBRATION_FRAMES:  # code calling quantize_model directly, not only the command
+            raise QuantizeError(f"calibration frames must be at most {MAX_CALIBRATION_FRAMES}, got {self.frames}")
 
 
 @dataclass

@@ -7,10 +7,10 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
+from dadiff.runtime.argtypes import float_in, int_in
 from dadiff.runtime.errors import OneLineParser
 
 PROG = "dadiff-train"
@@ -81,37 +81,20 @@ def config_help() -> str:
             f"input (one '{PROG}: error:' line), 130 interrupted.")
 
 
-def _positive(kind: type, zero: bool = False, most: int | None = None) -> object:
-    """An argparse type: a finite number of `kind` above 0 (or at least 0 with `zero`), at most `most`."""
-    least = "non-negative" if zero else "positive"
-    limit = "" if most is None else f" <= {most}"
-
-    def parse(text: str) -> int | float:
-        try:
-            value = kind(text)
-        except ValueError:
-            value = -1
-        if not (math.isfinite(value) and (value >= 0 if zero else value > 0)) or (most is not None and value > most):
-            raise argparse.ArgumentTypeError(f"expected a {least} {kind.__name__}{limit}, got {text!r}")
-        return value
-
-    return parse
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog=PROG, description="The paper's two-stage training, resumable, single process or "
                       "torchrun (needs the export extra: torch).", epilog=config_help(),
                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, help="training config (TOML); examples in dadiff/export/configs/")
-    p.add_argument("--max-steps", type=_positive(int),
+    p.add_argument("--max-steps", type=int_in(1),
                    help="stop after this many steps of this run (resume later; default: run to 'steps')")
     p.add_argument("--out", help="override the config's output folder")
-    p.add_argument("--seed", type=_positive(int, zero=True, most=SEED_MAX),
+    p.add_argument("--seed", type=int_in(0, SEED_MAX),
                    help="override the config's seed (a second run of one recipe: use another --out too)")
     p.add_argument("--show-config", action="store_true",
                    help="print the config the run would use (after 'extends' and --out/--seed) and exit")
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
-    p.add_argument("--max-minutes", type=_positive(float),
+    p.add_argument("--max-minutes", type=float_in(0, open_low=True),
                    help="stop after this many minutes of this run (resume later; default: no limit)")
     return p
 

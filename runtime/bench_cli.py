@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
-from .argtypes import int_in
+from .argtypes import int_in, non_negative_int, positive_int
 from .bench import (
     BenchLane,
     BenchRun,
@@ -39,7 +39,7 @@ from .bench import (
     time_search,
     write_night_video,
 )
-from .cli import hp_arg, non_negative_int, positive_int
+from .cli import hp_arg
 from .cpu import cpu_flags
 from .errors import InputError, ModelError, OneLineParser
 from .evaluation.datasets import Dataset, DatasetError

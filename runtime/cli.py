@@ -18,6 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from .argtypes import non_negative_int, positive_int
 from .config import TUNABLE_KEYS
 from .cpu import int8_warning
 from .errors import InputError, ModelError
@@ -74,29 +75,6 @@ def hp_arg(text: str) -> dict[str, str]:
             raise argparse.ArgumentTypeError(f"expected key=value pairs separated by commas, got {item!r}")
         values[key.strip()] = value.strip()
     return values
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (seeds: numpy refuses negative ones with a traceback, often after an
-    output folder is made)."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:

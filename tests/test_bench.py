@@ -98,11 +98,11 @@ def test_peak_is_measured(model_dir: Path, capsys) -> None:
         (["/no/such/model"], "/no/such/model"),
         (["{model}", "--compare-torch", "--frames", "2"], "checkpoint.pt: checkpoint not found"),
         (["{model}", "--sweep-steps", "one", "--checkpoint", "{model}/search.onnx"], "--sweep-steps"),
-        (["{model}", "--success", "-1"], "argument --success: expected a non-negative integer"),
+        (["{model}", "--success", "-1"], "argument --success: expected an integer of at least 0"),
         (["{model}", "--interleave", "-5"], "argument --interleave: expected an integer from 0 to 1000000"),
         (["{model}", "--hp", "foo=1", "--frames", "2"], "unknown override 'foo'"),
         # checked at parsing, naming the option: a traceback, a temporary file's name, a numpy allocation error
-        (["{model}", "--seed", "-1", "--frames", "2"], "argument --seed: expected a non-negative integer"),
+        (["{model}", "--seed", "-1", "--frames", "2"], "argument --seed: expected an integer of at least 0"),
         (["{model}", "--clip", "1", "--frames", "2"], "argument --clip: expected an integer from 2 to 1000"),
         (["{model}", "--frames", "1000000000000"], "argument --frames: expected an integer from 1 to 1000000"),
         (["{model}", "--warmup", "-1"], "argument --warmup: expected an integer from 0"),

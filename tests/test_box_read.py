@@ -90,7 +90,7 @@ def test_box_read_command_prints_one_row_per_shift_and_their_mean(tmp_path, caps
     assert float(rows["mean"][0]) == pytest.approx((float(rows["0"][0]) + float(rows["8"][0])) / 2, abs=1e-3)
 
 
-@pytest.mark.parametrize(("args", "message"), [(["--shifts", "nan"], "expected a finite number, got 'nan'"),
+@pytest.mark.parametrize(("args", "message"), [(["--shifts", "nan"], "expected a number from -255 to 255, got 'nan'"),
                                                (["--shifts", "1e308"], "--shifts: expected a number from -255 to 255"),
                                                (["--shifts", "250"], "--shifts 250: at most 223 crop px"),
                                                (["--dataset", "/no/such/set"], "/no/such/set")])

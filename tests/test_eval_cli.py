@@ -264,7 +264,7 @@ def test_run_and_score_outputs_never_land_in_the_dataset(bench, tmp_path, capsys
 
 @pytest.mark.parametrize(
     ("option", "message"),
-    [(["--seed", "-1"], "argument --seed: expected a non-negative integer, got '-1'"),
+    [(["--seed", "-1"], "argument --seed: expected an integer of at least 0, got '-1'"),
      (["--size", "100000x100000"], "argument --size: frame size must be at most 4096 x 4096"),
      (["--size", "16x16"], "argument --size: frame size must be at least 64 x 64")],
 )

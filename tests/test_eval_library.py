@@ -383,8 +383,8 @@ def test_a_malformed_index_is_one_line_naming_the_file_and_key(tmp_path, capsys,
         assert "index.json: not a valid library index" in line and key in line, line
 
 
-@pytest.mark.parametrize(("max_mib", "message"), [("nan", "expected a finite number, got 'nan'"),
-                                                  ("inf", "expected a finite number, got 'inf'"),
+@pytest.mark.parametrize(("max_mib", "message"), [("nan", "expected a number above 0 and at most 65536, got 'nan'"),
+                                                  ("inf", "expected a number above 0 and at most 65536, got 'inf'"),
                                                   ("0", "expected a number above 0")])
 def test_pack_budget_must_be_finite_and_positive(tmp_path, capsys, max_mib, message):
     with pytest.raises(SystemExit) as exit_:

@@ -137,4 +137,4 @@ def test_train_seed_option_is_bounded(tmp_path, capsys, seed: str) -> None:
     with pytest.raises(SystemExit) as info:
         train.main(["--config", str(config), "--seed", seed, "--show-config"])
     assert info.value.code == 2
-    assert "argument --seed: expected a non-negative int <= 4294967295" in _one_error(capsys, "dadiff-train")
+    assert "argument --seed: expected an integer from 0 to 4294967295" in _one_error(capsys, "dadiff-train")

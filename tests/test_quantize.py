@@ -3,6 +3,7 @@ errors. Tiny calibration and evaluation sets keep every test to a few seconds; n
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -133,9 +134,9 @@ def test_cli_exports_and_quantizes_a_checkpoint(tmp_path, capsys, lite_checkpoin
     (["--quantize", "int8", "--calibration", "{folder}", "--calibration-init", "1,2,0,5"], "must be positive"),
     (["--quantize", "int8", "--calibration", "{video}"], "give --calibration-init"),
     (["--quantize", "int8", "--calibration-init", "1,2,3,4"], "applies to --calibration"),
-    (["--quantize", "int8", "--calibration-frames", "0"], "--calibration-frames: expected an integer >= 1"),
-    (["--quantize", "int8", "--calibration-frames", "1000000000"], "--calibration-frames: expected an integer >= 1 "
-                                                                    "and <= 2000"),
+    (["--quantize", "int8", "--calibration-frames", "0"], "--calibration-frames: expected an integer from 1 to 2000"),
+    (["--quantize", "int8", "--calibration-frames", "1000000000"], "--calibration-frames: expected an integer "
+                                                                    "from 1 to 2000, got '1000000000'"),
     (["--calibration", "{folder}"], "applies to --quantize int8 only"),
     (["--quantize", "int8", "--steps", "3"], "applies to checkpoints"),
 ])
@@ -172,6 +173,13 @@ def test_checkpoint_export_is_skipped_when_the_options_are_wrong(tmp_path, capsy
 def test_model_folder_without_quantize_says_how(capsys, lite_model_dir):
     code, _, err = _run(capsys, str(lite_model_dir))
     assert code == 2 and "add --quantize int8" in err and err.count("\n") == 1
+
+
+def test_calibration_frames_are_bounded_for_api_callers_too(tmp_path, lite_model_dir):
+    too_many = dataclasses.replace(TINY, frames=10**9)  # grew memory without end before any check
+    with pytest.raises(QuantizeError, match="calibration frames must be at most 2000, got 1000000000"):
+        quantize_model(lite_model_dir, tmp_path / "q", too_many, log=lambda _line: None)
+    assert not (tmp_path / "q").exists()
 
 
 def test_refuses_to_overwrite_its_source(lite_model_dir):

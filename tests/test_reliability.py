@@ -189,7 +189,7 @@ def test_a_model_that_answers_nan_is_lost_not_tracking(tmp_path) -> None:
 
 def test_demo_seed_names_the_option(capsys) -> None:
     assert cli.main(["--demo", "--seed", "-1"]) == 2  # was: "expected non-negative integer", no option named
-    assert "argument --seed: expected a non-negative integer, got '-1'" in _one_error(capsys)
+    assert "argument --seed: expected an integer of at least 0, got '-1'" in _one_error(capsys)
 
 
 def _api_tracker(media: dict[str, Path], **kw: object):

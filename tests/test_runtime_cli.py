@@ -192,7 +192,7 @@ BAD_INPUTS = [
     (["--model", "{model}", "--preset", "NIGHT"], "unknown preset 'NIGHT'"),
     (["--model", "{model}", "--provider", "nope"], "provider 'nope' is not available"),
     (["--model", "{model}", "--output", "{root}/t.txt"], "--output must end in .csv or .jsonl"),
-    (["--model", "{model}", "--threads", "0"], "argument --threads: expected a positive integer"),
+    (["--model", "{model}", "--threads", "0"], "argument --threads: expected an integer of at least 1, got '0'"),
 ]
 
 

@@ -27,8 +27,8 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..argtypes import float_in
-from ..cli import hp_arg, non_negative_int, positive_int
+from ..argtypes import float_in, non_negative_int, positive_int
+from ..cli import hp_arg
 from ..errors import InputError, ModelError, OneLineParser
 from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
