@@ -85,7 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog=PROG, description="The paper's two-stage training, resumable, single process or "
                       "torchrun (needs the export extra: torch).", epilog=config_help(),
                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--config", required=True, help="training config (TOML); examples in dadiff/export/configs/")
+    p.add_argument("--config", required=True,
+                   help="training config (TOML); examples in the checkout's export/configs/ (installed: "
+                        "dadiff/export/configs/ in site-packages)")
     p.add_argument("--max-steps", type=int_in(1),
                    help="stop after this many steps of this run (resume later; default: run to 'steps')")
     p.add_argument("--out", help="override the config's output folder")

@@ -24,7 +24,7 @@ def as_image(frame: object) -> np.ndarray:
     elif frame.ndim == 3 and frame.shape[2] == 4:
         frame = cv2.cvtColor(frame, cv2.COLOR_BGRA2BGR)
     if not (frame.ndim == 2 or (frame.ndim == 3 and frame.shape[2] == 3)):
-        raise InputError(f"frame must be H×W (grey) or H×W×3 (BGR), got shape {frame.shape}")
+        raise InputError(f"frame must be H×W or H×W×1 (grey), H×W×3 (BGR) or H×W×4 (BGRA), got shape {frame.shape}")
     if frame.shape[0] == 0 or frame.shape[1] == 0:
         raise InputError(f"frame is empty (shape {frame.shape})")
     return frame

@@ -66,6 +66,7 @@ def test_cli_prints_one_row_per_tracker_and_names_a_missing_result(bench, capsys
     rows = {line.split()[0]: line.split()[1:] for line in out[3:]}
     assert rows["exact"][:3] == ["1.000", "1.000", "1.000"]
     assert rows["loses_dark"][:3] == ["0.500", "0.538", "0.000"]
+    assert rows["exact"][3:6] == ["-", "-", "-"]  # grey bins without a frame: a dash, not nan
     (bench / "res" / "exact" / "dark.txt").unlink()
     assert main(["anatomy", "--dataset", str(bench / "set"), str(bench / "res" / "exact")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

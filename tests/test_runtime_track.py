@@ -141,6 +141,8 @@ def test_bad_frames(tracker: Tracker) -> None:
         tracker.init(np.zeros((36, 48, 3), np.float32), (1, 1, 10, 10))
     with pytest.raises(InputError, match="shape"):
         tracker.init(np.zeros((36, 48, 2), np.uint8), (1, 1, 10, 10))
+    with pytest.raises(InputError, match=r"H×W×1 \(grey\), H×W×3 \(BGR\) or H×W×4 \(BGRA\), got shape \(3, 36, 48\)"):
+        tracker.init(np.zeros((3, 36, 48), np.uint8), (1, 1, 10, 10))  # channels first: every accepted layout named
 
 
 def test_update_before_init(model_dir: Path) -> None:

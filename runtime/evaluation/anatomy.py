@@ -142,9 +142,15 @@ def format_anatomy(dataset: Dataset, rows: Sequence[Anatomy], bins: Sequence[np.
              f"centred: centre within {CENTRED:g} of the target's size; by the mean grey level in the true box:",
              f"{'Tracker':<{width}}  centred  IoU there  " + "  ".join(f"{s:>{max(12, len(s))}}" for s in shares)]
     for r in rows:
-        cells = "  ".join(f"{v:>{max(12, len(s))}.3f}" for v, s in zip(r.centred_by_grey, shares, strict=True))
-        lines.append(f"{r.name:<{width}}  {r.centred:7.3f}  {r.iou_centred:9.3f}  {cells}")
+        cells = "  ".join(f"{_cell(v, '.3f'):>{max(12, len(s))}}"
+                          for v, s in zip(r.centred_by_grey, shares, strict=True))
+        lines.append(f"{r.name:<{width}}  {_cell(r.centred, '7.3f')}  {_cell(r.iou_centred, '9.3f')}  {cells}")
     return "\n".join(lines)
+
+
+def _cell(value: float, spec: str) -> str:
+    """A table cell; '-' where nothing was measured (no frame in a grey bin, no centred frame), not nan."""
+    return format(value, spec) if np.isfinite(value) else format("-", ">" + spec.split(".")[0])
 
 
 def format_honesty(rows: Sequence[Honesty]) -> str:
