@@ -5,7 +5,9 @@ threads), so that their ratios are measured over the same stretch of time; the f
 the ratios. `--compare-torch` times the PyTorch graph on the same crops (a subprocess:
 this package never imports torch), `--sweep-steps` re-exports a checkpoint with other DDIM step counts and
 sets speed beside night success, `--peak` measures the CPU's arithmetic limit. OpenCV's TrackerNano
-(NanoTrack v2) runs on the same frames as a reference point when its weights are here (`--no-nano` skips it).
+(NanoTrack v2) runs on the same frames as a reference point when its weights are found (`--nano-dir`, else
+$DADIFF_NANO_DIR, else ../shared/weights/nanotrack/v2 beside a source checkout); when they are not, one note on
+stderr says so (`--no-nano` skips it without a note).
 """
 
 from __future__ import annotations
@@ -44,12 +46,13 @@ from .cpu import cpu_flags
 from .errors import InputError, ModelError, OneLineParser
 from .evaluation.datasets import Dataset, DatasetError
 from .evaluation.evaluate import (
+    NANO_ENV,
     EvalError,
     OpenCVTracker,
     generated_night_set,
-    nano_available,
     nano_files,
     nano_label,
+    nano_problem,
     run_tracker,
     score_folder,
     score_tracker,
@@ -107,9 +110,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--peak", action="store_true", help="measure the CPU's arithmetic limit (needs dadiff[export])")
     p.add_argument("--nano", action=argparse.BooleanOptionalAction, default=None,
                    help="also time OpenCV's TrackerNano (NanoTrack v2) on the same frames "
-                        "(default: on when its weights are found)")
+                        "(default: on when its weights are found, else a note on stderr says why not)")
     p.add_argument("--nano-dir", type=Path, metavar="DIR",
-                   help="NanoTrack v2 ONNX folder (default: ../shared/weights/nanotrack/v2 beside the checkout)")
+                   help=f"NanoTrack v2 ONNX folder (default: ${NANO_ENV}, else ../shared/weights/nanotrack/v2 "
+                        "beside a source checkout)")
     p.add_argument("--instructions", action="store_true",
                    help="instead of timing, count instructions per update under valgrind, which runs the "
                         "program as a CPU without AVX-512 would (AVX2/FMA kernels), beside TrackerNano's: a "
@@ -222,13 +226,18 @@ def _flags_text(flags: dict[str, bool | None]) -> str:
 
 
 def _use_nano(args: argparse.Namespace) -> bool:
-    """--nano: required (a missing weight is an error); default: when the weights are here."""
+    """--nano: required (a missing weight is an error naming --nano); default: when the weights are here, and
+    one note on stderr when not (TrackerNano used to vanish from the report without a word); --no-nano: never."""
     if args.nano is False:
         return False
     if args.nano is None:
-        return nano_available(args.nano_dir)
+        problem = nano_problem(args.nano_dir)
+        if problem is not None:  # stderr: with --json, stdout stays one JSON document
+            print(f"dadiff-bench: note: TrackerNano was not timed: {problem} (--no-nano silences this note)",
+                  file=sys.stderr)
+        return problem is None
     try:
-        OpenCVTracker("nano", nano_dir=args.nano_dir)  # checks the module and the files, loads nothing
+        OpenCVTracker("nano", nano_dir=args.nano_dir, option="--nano")  # checks the module and the files
     except EvalError as exc:
         raise BenchError(str(exc)) from None
     return True
@@ -326,7 +335,7 @@ def run_instructions(args: argparse.Namespace, models: list[Path]) -> dict:
         clip = write_clip(video.path, Path(tmp) / "clip.npy")
         counts = [count_updates("model", str(m), clip, video.first_box, m.name) for m in models]
         if use_nano:
-            nano_dir = str(nano_files(args.nano_dir)[0].parent)
+            nano_dir = str(nano_files(args.nano_dir)[0].parent)  # `_use_nano` checked them, naming --nano
             counts.append(count_updates("nano", nano_dir, clip, video.first_box, nano_label()))
     report = {"machine": _cpu(), "mode": "instructions", "video": f"generated night sequence {video.name}",
               "updates": list(UPDATES), "results": [vars(c) for c in counts[:len(models)]]}
@@ -382,8 +391,8 @@ def run(args: argparse.Namespace) -> dict:
             night = generated_night_set(Path(tmp) / "night", args.success, args.success_frames, SUCCESS_SEED)
         lanes = [_model_lane(m, args, video) for m in models]
         if use_nano:  # OpenCV's threads set to ours while it runs (`_use_nano` checked the weights)
-            lanes.append(BenchLane(OpenCVTracker("nano", nano_dir=args.nano_dir), video, args.frames,
-                                   cv2_threads=threads))
+            nano_tracker = OpenCVTracker("nano", nano_dir=args.nano_dir, option="--nano")
+            lanes.append(BenchLane(nano_tracker, video, args.frames, cv2_threads=threads))
         with tqdm(total=args.frames * len(lanes), desc="frames", unit="frame", leave=False,
                   disable=args.json or not sys.stderr.isatty()) as bar:
             runs = run_lanes(lanes, args.warmup, args.interleave, progress=lambda _: bar.update())

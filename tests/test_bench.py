@@ -13,7 +13,7 @@ import pytest
 
 from dadiff.runtime import bench_cli
 from dadiff.runtime.bench import STAGES, BenchLane, run_lanes, write_night_video
-from dadiff.runtime.evaluation.evaluate import DEFAULT_NANO_DIR, nano_available
+from dadiff.runtime.evaluation.evaluate import nano_available, nano_problem, opencv_available
 from runtime_models import write_corr_model
 
 
@@ -62,7 +62,7 @@ def test_torch_comparison_and_step_sweep(lite_checkpoint: Path, lite_model_dir: 
 
 def test_nano_row_and_ratio(model_dir: Path, capsys) -> None:
     if not nano_available():
-        pytest.skip(f"NanoTrack v2 weights not found in {DEFAULT_NANO_DIR} (or cv2.TrackerNano missing)")
+        pytest.skip(nano_problem())
     argv = [str(model_dir), "--frames", "6", "--clip", "5", "--warmup", "1", "--threads", "1", "--nano",
             "--success", "1", "--success-frames", "5"]
     assert bench_cli.main(argv) == 0
@@ -85,6 +85,26 @@ def test_nano_without_weights_is_one_line(model_dir: Path, tmp_path: Path, capsy
     assert bench_cli.main([str(model_dir), "--nano", "--nano-dir", str(tmp_path), "--frames", "2"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "nanotrack_backbone_sim.onnx" in err
+    if opencv_available("nano"):  # named dadiff-eval's option, --tracker nano, which dadiff-bench does not have
+        assert err.startswith("dadiff-bench: error: --nano needs NanoTrack v2's") and "--tracker" not in err
+        assert err.endswith("give the folder that holds them with --nano-dir DIR or DADIFF_NANO_DIR=DIR")
+
+
+def test_nano_left_out_by_default_says_why(model_dir: Path, tmp_path: Path, capsys, monkeypatch) -> None:
+    """Without its weights, TrackerNano used to vanish from the report without a word."""
+    monkeypatch.setenv("DADIFF_NANO_DIR", str(tmp_path))
+    argv = [str(model_dir), "--frames", "2", "--clip", "3", "--warmup", "0", "--threads", "1", "--json"]
+    assert bench_cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert "nano" not in json.loads(captured.out)  # stdout stays one JSON document
+    (note,) = captured.err.strip().splitlines()
+    assert note.startswith("dadiff-bench: note: TrackerNano was not timed: ")
+    assert note.endswith(" (--no-nano silences this note)")
+    if opencv_available("nano"):
+        assert (f"nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx were not found in {tmp_path} (from "
+                "DADIFF_NANO_DIR); give --nano-dir DIR or DADIFF_NANO_DIR=DIR") in note
+    assert bench_cli.main([*argv, "--no-nano"]) == 0
+    assert capsys.readouterr().err == ""
 
 
 def test_peak_is_measured(model_dir: Path, capsys) -> None:

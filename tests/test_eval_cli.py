@@ -3,18 +3,25 @@
 from __future__ import annotations
 
 import json
+import shutil
+import sys
 
 import numpy as np
 import pytest
 
+from dadiff.runtime.evaluation import cli as eval_cli
+from dadiff.runtime.evaluation import evaluate
 from dadiff.runtime.evaluation.cli import main
 from dadiff.runtime.evaluation.evaluate import (
-    DEFAULT_NANO_DIR,
     EvalError,
     OpenCVTracker,
+    TrackerUnavailable,
     nano_available,
+    nano_files,
+    nano_problem,
     opencv_available,
     read_result,
+    run_record_differences,
 )
 
 pytest.importorskip("skimage")  # the scene photos
@@ -81,7 +88,7 @@ def test_run_writes_pysot_results_and_resumes(bench, corr_model, tmp_path, capsy
     ]
     (folder / "seq002_day.txt").unlink()
     assert main(args) == 0
-    assert "tracked 1 sequences (3 frames" in capsys.readouterr().out  # the other three were kept
+    assert "tracked 1 sequence (3 frames" in capsys.readouterr().out  # the other three were kept
     assert main([*args, "--sequences", "*_night", "--attributes", "--no-plots"]) == 0
     out = capsys.readouterr().out
     assert "bench (*_night): 2 sequences" in out and "LAI: 2 sequences" in out
@@ -154,7 +161,7 @@ def test_an_opencv_tracker_that_raises_is_a_failed_update(monkeypatch):
 
 def test_nano_baseline(bench, tmp_path, capsys):
     if not nano_available():
-        pytest.skip(f"NanoTrack v2 weights not found in {DEFAULT_NANO_DIR} (or cv2.TrackerNano missing)")
+        pytest.skip(nano_problem())
     assert main(["run", "--tracker", "nano", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress",
                  "--no-plots"]) == 0
     assert "NANO: tracked 4 sequences" in capsys.readouterr().out
@@ -170,6 +177,7 @@ def test_nano_without_weights_is_one_line_exit_2(bench, tmp_path, capsys):
     assert main(args) == 2
     line = _one_error_line(capsys)
     assert "nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx" in line and str(empty) in line
+    assert line.startswith("dadiff-eval: error: --tracker nano needs") and "--nano-dir DIR or DADIFF_NANO_DIR" in line
     assert main(["run", "--tracker", "csrt", "--nano-dir", str(empty), "--dataset", str(bench), "--results",
                  str(tmp_path), "--no-progress"]) == 2
     assert "--nano-dir does not apply" in _one_error_line(capsys)
@@ -291,3 +299,166 @@ def test_score_of_huge_boxes_prints_no_numpy_warning(bench, tmp_path, capsys):
     assert main(["score", "--dataset", str(bench), "--json", str(folder)]) == 0
     captured = capsys.readouterr()
     assert captured.err == "" and json.loads(captured.out)["T"]["success"] == 0
+
+
+def _weights(folder):
+    folder.mkdir(parents=True)
+    for name in evaluate.NANO_FILES:
+        (folder / name).write_bytes(b"weights")
+    return folder
+
+
+def test_nano_dir_default_is_the_environment_then_the_checkout(tmp_path, monkeypatch):
+    """The default used to be ../shared beside the package's folder: after `pip install .`, site-packages/shared.
+    Now $DADIFF_NANO_DIR first, then the checkout's ../shared only where it exists; the error says how to give it."""
+    env, beside = _weights(tmp_path / "env"), _weights(tmp_path / "checkout-shared")
+    monkeypatch.setattr(evaluate, "CHECKOUT_NANO_DIR", beside)
+    monkeypatch.setenv("DADIFF_NANO_DIR", str(env))
+    assert nano_files()[0] == env / "nanotrack_backbone_sim.onnx"
+    assert nano_files(beside)[1] == beside / "nanotrack_head_sim.onnx"  # --nano-dir wins
+    monkeypatch.delenv("DADIFF_NANO_DIR")
+    assert nano_files()[0].parent == beside
+    monkeypatch.setattr(evaluate, "CHECKOUT_NANO_DIR", tmp_path / "site-packages" / "shared")  # installed: none
+    with pytest.raises(TrackerUnavailable) as caught:
+        nano_files()
+    message = str(caught.value)
+    assert message.startswith("--tracker nano needs NanoTrack v2's nanotrack_backbone_sim.onnx and "
+                              "nanotrack_head_sim.onnx, found nowhere")
+    assert message.endswith("give the folder that holds them with --nano-dir DIR or DADIFF_NANO_DIR=DIR")
+    assert "site-packages" not in message
+    monkeypatch.setenv("DADIFF_NANO_DIR", str(tmp_path / "nope"))
+    with pytest.raises(TrackerUnavailable, match=r"not found in .*nope \(from DADIFF_NANO_DIR\)"):
+        nano_files()
+
+
+def _run(bench, results, *extra):
+    return ["run", "--dataset", str(bench), "--results", str(results), "--no-plots", "--no-progress", *extra]
+
+
+def test_run_record_lets_the_same_settings_resume(bench, corr_model, tmp_path, capsys):
+    results = tmp_path / "r"
+    assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=.3")) == 0
+    record = json.loads((results / "bench" / "corr" / "run.json").read_text())
+    assert record["tracker"] == "dadiff" and record["hp"] == {"lr": 0.3} and record["preset"] is None
+    assert record["model"]["folder"] == str(corr_model.resolve()) and len(record["model"]["search_sha256"]) == 64
+    capsys.readouterr()
+    copy = shutil.copytree(corr_model, tmp_path / "elsewhere" / "corr")  # the same files elsewhere: same boxes
+    assert main(_run(bench, results, "--model", str(copy), "--hp", "lr=0.3", "--threads", "1")) == 0
+    captured = capsys.readouterr()
+    assert "tracked 0 sequences (0 frames), 4 already done" in captured.out and captured.err == ""
+
+
+def test_run_into_a_folder_of_other_settings_is_refused(bench, corr_model, tmp_path, capsys):
+    """A resumed run skipped every finished sequence and reported the old setting's scores as the new one's."""
+    results = tmp_path / "r"
+    assert main(_run(bench, results, "--model", str(corr_model))) == 0
+    capsys.readouterr()
+    folder = results / "bench" / "corr"
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=0.05")) == 2
+    line = _one_error_line(capsys)
+    assert line == (f"dadiff-eval: error: {folder} holds results of other settings (--hp lr: unset before, "
+                    "0.05 now): give --name NEW (or another --results) for these settings; nothing tracked")
+    other = write_other_model(tmp_path / "other" / "corr")
+    assert main(_run(bench, results, "--model", str(other))) == 2
+    line = _one_error_line(capsys)
+    assert f"(--model: {corr_model.resolve()} (sha256 " in line and f"before, {other.resolve()} (sha256 " in line
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before  # nothing tracked, nothing rewritten
+    assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=0.05", "--name", "corr-lr")) == 0
+    assert "corr-lr: tracked 4 sequences" in capsys.readouterr().out
+
+
+def write_other_model(folder):
+    pytest.importorskip("onnx")
+    from runtime_models import write_corr_model
+
+    return write_corr_model(folder, gain=9.0)
+
+
+def test_a_folder_without_a_run_record_still_resumes(bench, corr_model, tmp_path, capsys):
+    """Folders of older versions have no run.json: resumed, with one warning, and no record made up for them."""
+    results = tmp_path / "r"
+    assert main(_run(bench, results, "--model", str(corr_model))) == 0
+    record = results / "bench" / "corr" / "run.json"
+    record.unlink()
+    capsys.readouterr()
+    assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=0.05")) == 0
+    captured = capsys.readouterr()
+    assert "tracked 0 sequences (0 frames), 4 already done" in captured.out
+    assert _lines(captured.err) == [f"dadiff-eval: warning: {record.parent} has results but no run.json (written "
+                                    "by an older dadiff-eval): their settings cannot be checked against this "
+                                    "run's; resuming"]
+    assert not record.exists()
+    record.write_text("{not json")
+    assert main(_run(bench, results, "--model", str(corr_model))) == 2
+    assert "run.json: unreadable run record" in _one_error_line(capsys)
+
+
+def _lines(text):
+    return text.strip().splitlines()
+
+
+def test_run_record_differences_compare_files_not_paths():
+    model = {"folder": "/a/m", "template_sha256": "t" * 64, "search_sha256": "s" * 64}
+    old = {"record": 1, "tracker": "dadiff", "model": model, "preset": None, "hp": {}}
+    assert run_record_differences(old, {**old, "model": {**model, "folder": "/b/m"}}) == []
+    assert run_record_differences(old, {**old, "preset": "NUT_L"}) == ["--preset: none before, NUT_L now"]
+    assert run_record_differences(old, {**old, "model": {**model, "search_sha256": "x" * 64}}) == [
+        f"--model: /a/m (sha256 {'s' * 12}) before, /a/m (sha256 {'x' * 12}) now"]
+    nano = {"record": 1, "tracker": "nano", "nano": {"folder": "/w", "backbone_sha256": "b" * 64, "head_sha256": "h"}}
+    assert run_record_differences(nano, {**nano, "nano": {**nano["nano"], "head_sha256": "g"}})[0].startswith(
+        "--nano-dir: /w (sha256 bbbbbbbbbbbb) before")
+    assert run_record_differences(old, nano) == ["--tracker: dadiff before, nano now"]
+
+
+def test_run_draws_its_bar_only_on_a_terminal(bench, corr_model, tmp_path, capsys, monkeypatch):
+    """The bar went into logs too (stderr redirected); now only on a terminal, and --no-progress still wins."""
+    seen = []
+    real = eval_cli.run_tracker
+
+    def spy(*args, progress, **kwargs):
+        seen.append(progress)
+        return real(*args, progress=progress, **kwargs)
+
+    monkeypatch.setattr(eval_cli, "run_tracker", spy)
+    base = ["run", "--dataset", str(bench), "--model", str(corr_model), "--no-plots"]
+    assert main([*base, "--results", str(tmp_path / "a")]) == 0
+    assert seen == [False] and capsys.readouterr().err == ""  # captured stderr is no terminal: no bar lines
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    assert main([*base, "--results", str(tmp_path / "b")]) == 0
+    assert main([*base, "--results", str(tmp_path / "c"), "--no-progress"]) == 0
+    assert seen == [False, True, False]
+
+
+def test_score_against_itself_alone_says_there_is_nothing_to_compare(bench, tmp_path, capsys):
+    folder = tmp_path / "mine" / "Perfect"
+    folder.mkdir(parents=True)
+    for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
+        np.savetxt(folder / f"{seq}.txt", _gt(bench, seq), delimiter=",")
+    assert main(["score", "--dataset", str(bench), "--against", "Perfect", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "success minus" not in out  # was: the heading, then nothing
+    assert _lines(out)[-1] == "--against Perfect: nothing to compare (Perfect is the only tracker given)"
+
+
+def test_score_counts_one_sequence_in_the_singular(bench, tmp_path, capsys):
+    folder = tmp_path / "mine" / "Perfect"
+    folder.mkdir(parents=True)
+    np.savetxt(folder / "seq001_night.txt", _gt(bench, "seq001_night"), delimiter=",")
+    assert main(["score", "--dataset", str(bench), "--sequences", "seq001_night", "--attributes", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "bench (seq001_night): 1 sequence\n" in out and "LAI: 1 sequence\n" in out  # was: "1 sequences"
+    assert "1 sequences" not in out
+
+
+def test_generate_without_scikit_image_leaves_no_folder(tmp_path, capsys, monkeypatch):
+    """The photos were checked after the --out folder was made: an empty folder stayed behind."""
+    from dadiff.runtime.evaluation import photos
+
+    monkeypatch.setitem(sys.modules, "skimage", None)  # `import skimage.data` raises ImportError
+    monkeypatch.setitem(sys.modules, "skimage.data", None)
+    monkeypatch.setattr(photos, "_photos", photos._photos.__wrapped__)  # past the cache of loaded photos
+    out = tmp_path / "g"
+    assert main(["generate", "--out", str(out), "--sequences", "1", "--frames", "2", "--workers", "1"]) == 2
+    assert "need scikit-image's photos, which are not installed here" in _one_error_line(capsys)
+    assert not out.exists()

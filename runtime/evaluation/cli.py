@@ -37,11 +37,14 @@ from .datasets import Dataset, DatasetError, load_dataset
 from .detection_tracks import LinkSettings, write_detection_benchmark
 from .detector import Detector, detect_video, write_det_txt
 from .evaluate import (
+    NANO_ENV,
     EvalError,
     OpenCVTracker,
     RuntimeTracker,
     TrackerScores,
     TrackerUnavailable,
+    claim_folder,
+    nano_files,
     read_results,
     read_states,
     result_folders,
@@ -107,10 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--tracker", choices=("dadiff", "csrt", "kcf", "nano"), default="dadiff",
                      help="tracker to run (nano: OpenCV's TrackerNano with NanoTrack v2 weights)")
     run.add_argument("--nano-dir", type=Path, metavar="DIR",
-                     help="folder of nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx "
-                          "(default: ../shared/weights/nanotrack/v2 beside the checkout)")
+                     help="folder of nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx (default: "
+                          f"${NANO_ENV}, else ../shared/weights/nanotrack/v2 beside a source checkout)")
     run.add_argument("--name", type=tracker_name,
-                     help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO)")
+                     help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO); "
+                          "a folder holds one setting (its run.json records it): give a new name for another --model, "
+                          "--preset or --hp")
     run.add_argument("--preset", help="hyper-parameter preset of the model (e.g. UAVDark70, NUT_L)")
     run.add_argument("--hp", type=hp_arg, default={}, metavar="k=v,...",
                      help="tracker settings over the preset's, as dadiff-run --hp (e.g. motion_compensation=0)")
@@ -119,7 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--compare", nargs="+", type=Path, default=[], metavar="DIR", help="more result folders")
     run.add_argument("--plots", type=Path, help="plot folder (default: <results>/plots/<dataset>)")
     run.add_argument("--no-plots", action="store_true", help="do not draw plots")
-    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--no-progress", action="store_true",
+                     help="no progress bar (default: a bar when stderr is a terminal)")
 
     score = sub.add_parser("score", parents=[common], help="score result folders of any tracker")
     score.add_argument("dirs", nargs="+", type=Path, metavar="DIR", help="tracker result folders, or their parent")
@@ -318,6 +324,11 @@ def format_table(title: str, scores: Sequence[TrackerScores], attribute: str | N
     return "\n".join(lines)
 
 
+def sequence_count(count: int) -> str:
+    """'1 sequence', '2 sequences': the tables' and the run line's counts ('OCC: 1 sequences' read wrong)."""
+    return f"{count} sequence" + ("" if count == 1 else "s")
+
+
 def _pick(item: TrackerScores, attribute: str | None):
     return item.overall if attribute is None else item.by_attribute[attribute]
 
@@ -327,12 +338,12 @@ def report(
 ) -> None:
     """Print the overall table (and per attribute), then draw the plots."""
     label = dataset.name + (f" ({' '.join(subset)})" if subset else "")
-    print(format_table(f"{label}: {len(dataset.sequences)} sequences", scores))
+    print(format_table(f"{label}: {sequence_count(len(dataset.sequences))}", scores))
     names = dataset.attributes() if attributes else []
     for attr in names:
         count = sum(attr in s.attributes for s in dataset.sequences)
         print()
-        print(format_table(f"{attr}: {count} sequences", scores, attr))
+        print(format_table(f"{attr}: {sequence_count(count)}", scores, attr))
     print(NOTE)
     if plots is not None:
         written = write_plots({s.name: s.overall for s in scores}, plots, label)
@@ -388,6 +399,32 @@ def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
     return RuntimeTracker(tracker), name
 
 
+def _plain(value: object) -> object:
+    """A setting's value as JSON keeps it."""
+    return value if isinstance(value, (bool, int, float, str)) or value is None else str(value)
+
+
+def run_record(args: argparse.Namespace, tracker: object) -> dict:
+    """What decides this run's boxes, for the result folder's run.json: the tracker, the model's files (by
+    hash: a model re-exported in place is another model), --preset, the effective --hp values and the
+    NanoTrack weights. Not --threads or --sequences, which change no box."""
+    from ..ort_cache import file_sha256
+
+    record: dict = {"record": 1, "tracker": args.tracker}
+    if isinstance(tracker, RuntimeTracker):
+        backend, params = tracker.tracker.backend, tracker.tracker.params
+        record["model"] = {"folder": str(Path(backend.folder).resolve()),
+                           "template_sha256": file_sha256(backend.template_path),
+                           "search_sha256": file_sha256(backend.search_path)}
+        record["preset"] = args.preset
+        record["hp"] = {key: _plain(getattr(params, key)) for key in args.hp}  # lr=.05 and lr=0.05 are one
+    elif args.tracker == "nano":
+        backbone, head = nano_files(args.nano_dir)
+        record["nano"] = {"folder": str(backbone.parent.resolve()), "backbone_sha256": file_sha256(backbone),
+                          "head_sha256": file_sha256(head)}
+    return record
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset).select(args.sequences)
     try:
@@ -396,13 +433,19 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     _check_results(args.results, dataset.name, name)
-    check_output("--results", tracker_folder(args.results, dataset.name, name), [args.dataset])
+    results = tracker_folder(args.results, dataset.name, name)
+    check_output("--results", results, [args.dataset])
     plots = None if args.no_plots else (args.plots or args.results / "plots" / dataset.name)
     check_output("--plots", plots, [args.dataset])
-    done = run_tracker(tracker, name, dataset, args.results, progress=not args.no_progress)
+    warning = claim_folder(results, run_record(args, tracker))  # before tracking: other settings are refused
+    if warning:
+        print(f"{PROG}: warning: {warning}", file=sys.stderr)
+    # a bar only on a terminal, as dadiff-run: redirected, it filled logs with one line per refresh
+    progress = not args.no_progress and sys.stderr.isatty()
+    done = run_tracker(tracker, name, dataset, args.results, progress=progress)
     fps = f", {done.fps:.1f} FPS" if done.fps else ""
     print(
-        f"{name}: tracked {len(done.ran)} sequences ({done.frames} frames{fps}), "
+        f"{name}: tracked {sequence_count(len(done.ran))} ({done.frames} frames{fps}), "
         f"{len(done.skipped)} already done, results in {done.folder}"
     )
     scores = [score_folder(dataset, done.folder, name)]
@@ -422,6 +465,8 @@ def format_differences(scores: Sequence[TrackerScores], against: str) -> str:
     base = next((s for s in scores if s.name == against), None)
     if base is None:
         raise InputError(f"--against {against}: no such tracker among {', '.join(s.name for s in scores)}")
+    if len(scores) == 1:  # the heading alone used to be printed, with nothing under it
+        return f"--against {against}: nothing to compare ({against} is the only tracker given)"
     names = list(base.sequences)
     lines = [f"success minus {against} (per-sequence bootstrap, 95% interval):"]
     for item in scores:
@@ -431,7 +476,7 @@ def format_differences(scores: Sequence[TrackerScores], against: str) -> str:
                               [base.sequences[n].success.mean() for n in names])
         relative = 100 * d.mean / base.overall.success if base.overall.success else float("nan")
         lines.append(f"  {item.name}: {d.mean:+.3f} ({relative:+.1f} %) [{d.low:+.3f}, {d.high:+.3f}] "
-                     f"over {d.sequences} sequences")
+                     f"over {sequence_count(d.sequences)}")
     return "\n".join(lines)
 
 

@@ -6,10 +6,13 @@ tracker, so that all trackers share frame 0. Beside each, `<sequence>.states` ho
 user in each frame, `score,state` (frame 0: `1,init`), so that reports can check the state against the
 truth. A run is resumable: a sequence whose result file already has one line per frame is skipped. Files are
 written whole (temporary file, then rename), so an interrupted run never leaves a truncated file behind.
+`run.json` in the folder records what produced it (tracker, model hashes, --preset, --hp, NanoTrack weights):
+a run with other settings is refused, so that results of one setting are never reported as another's.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
@@ -66,9 +69,13 @@ class RuntimeTracker:
 
 OPENCV_TRACKERS = {"csrt": "TrackerCSRT", "kcf": "TrackerKCF", "nano": "TrackerNano"}
 OPENCV_NAMES = {"csrt": "CSRT", "kcf": "KCF", "nano": "NANO"}
-# NanoTrack v2 as cv2.TrackerNano loads it; not shipped (third-party weights): ../shared/ beside the checkout.
+# NanoTrack v2 as cv2.TrackerNano loads it; third-party weights, not shipped. Found through --nano-dir, else
+# DADIFF_NANO_DIR, else ../shared/weights/nanotrack/v2 beside the source checkout this package runs from (a
+# non-editable install has no checkout: that path would point into site-packages, so it counts only if present).
 NANO_FILES = ("nanotrack_backbone_sim.onnx", "nanotrack_head_sim.onnx")
-DEFAULT_NANO_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "weights" / "nanotrack" / "v2"
+NANO_ENV = "DADIFF_NANO_DIR"
+CHECKOUT_NANO_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "weights" / "nanotrack" / "v2"
+NANO_HINT = f"--nano-dir DIR or {NANO_ENV}=DIR"
 
 
 class TrackerUnavailable(EvalError):
@@ -80,25 +87,58 @@ def opencv_available(kind: str) -> bool:
     return hasattr(getattr(cv2, OPENCV_TRACKERS[kind], None), "create")
 
 
-def nano_files(folder: Path | None = None) -> tuple[Path, Path]:
-    """(backbone, neck/head) ONNX files of NanoTrack v2 in `folder` (default DEFAULT_NANO_DIR)."""
-    folder = Path(folder).expanduser() if folder is not None else DEFAULT_NANO_DIR
-    paths = tuple(folder / name for name in NANO_FILES)
+def default_nano_dir() -> tuple[Path | None, str]:
+    """Where the NanoTrack v2 weights are looked for without --nano-dir, and where that folder came from:
+    $DADIFF_NANO_DIR (read at each call, so a shell or a test can set it), else the checkout's ../shared."""
+    env = os.environ.get(NANO_ENV, "").strip()
+    if env:
+        return Path(env).expanduser(), f"from {NANO_ENV}"
+    if CHECKOUT_NANO_DIR.is_dir():
+        return CHECKOUT_NANO_DIR, "the default beside the source checkout"
+    return None, ""
+
+
+def _nano_weights(folder: Path | None) -> tuple[tuple[Path, Path] | None, str, str]:
+    """The two weight files (or None), the names of those missing, and where they were looked for."""
+    if folder is not None:
+        folder, origin = Path(folder).expanduser(), "given by --nano-dir"
+    else:
+        folder, origin = default_nano_dir()
+        if folder is None:
+            return None, " and ".join(NANO_FILES), (
+                f"found nowhere (not shipped; no --nano-dir or {NANO_ENV} given, and no "
+                "../shared/weights/nanotrack/v2 beside a source checkout)")
+    paths = (folder / NANO_FILES[0], folder / NANO_FILES[1])
     missing = [p.name for p in paths if not p.is_file()]
     if missing:
-        raise TrackerUnavailable(
-            f"--tracker nano needs NanoTrack v2's {' and '.join(missing)} in {folder} (give --nano-dir DIR)"
-        )
-    return paths  # type: ignore[return-value]
+        return None, " and ".join(missing), f"not found in {folder} ({origin})"
+    return paths, "", ""
+
+
+def nano_files(folder: Path | None = None, option: str = "--tracker nano") -> tuple[Path, Path]:
+    """(backbone, neck/head) ONNX files of NanoTrack v2 in `folder` (default: `default_nano_dir()`).
+
+    `option` is how the command that asked names TrackerNano (`--nano` for dadiff-bench), so that the error
+    names an option of the command that was used."""
+    paths, missing, where = _nano_weights(folder)
+    if paths is None:
+        raise TrackerUnavailable(f"{option} needs NanoTrack v2's {missing}, {where}: give the folder that holds "
+                                 f"them with {NANO_HINT}")
+    return paths
+
+
+def nano_problem(folder: Path | None = None) -> str | None:
+    """Why TrackerNano cannot run here (no cv2.TrackerNano, or no weights, with how to give them), or None."""
+    if not opencv_available("nano"):
+        return f"this OpenCV ({cv2.__version__}) has no cv2.TrackerNano (OpenCV >= 4.7 has it)"
+    paths, missing, where = _nano_weights(folder)
+    verb = "were" if " and " in missing else "was"
+    return None if paths is not None else f"NanoTrack v2's {missing} {verb} {where}; give {NANO_HINT}"
 
 
 def nano_available(folder: Path | None = None) -> bool:
     """Whether cv2.TrackerNano and the NanoTrack v2 weights are both here."""
-    try:
-        nano_files(folder)
-    except TrackerUnavailable:
-        return False
-    return opencv_available("nano")
+    return nano_problem(folder) is None
 
 
 def nano_label() -> str:
@@ -106,8 +146,8 @@ def nano_label() -> str:
     return f"TrackerNano (NanoTrack v2, OpenCV {cv2.__version__})"
 
 
-def _nano_factory(folder: Path | None) -> Callable[[], object]:
-    backbone, head = nano_files(folder)
+def _nano_factory(folder: Path | None, option: str) -> Callable[[], object]:
+    backbone, head = nano_files(folder, option)
 
     def create() -> object:
         params = cv2.TrackerNano_Params()
@@ -126,22 +166,25 @@ class OpenCVTracker:
     """OpenCV's CSRT, KCF (opencv-contrib) or TrackerNano (NanoTrack v2 weights, `nano_dir`).
 
     The score is the tracker's own where it has one (TrackerNano), else 1; a failed update (or one that raises
-    cv2.error, as CSRT does on some sequences) keeps the last box and reports 'lost'.
+    cv2.error, as CSRT does on some sequences) keeps the last box and reports 'lost'. `option`: how the calling
+    command names this tracker in errors (default `--tracker KIND`, as dadiff-eval run).
     """
 
-    def __init__(self, kind: str, *, nano_dir: Path | None = None) -> None:
+    def __init__(self, kind: str, *, nano_dir: Path | None = None, option: str | None = None) -> None:
         kind = kind.lower()
         if kind not in OPENCV_TRACKERS:
             raise EvalError(f"unknown OpenCV tracker '{kind}'; expected one of {', '.join(OPENCV_TRACKERS)}")
+        option = option or f"--tracker {kind}"
         if not opencv_available(kind):
             hint = (f"pip install opencv-contrib-python-headless=={cv2.__version__}.* (or dadiff[baselines])"
                     if kind != "nano" else "it is in OpenCV >= 4.7")
             contrib = "OpenCV's contrib modules" if kind != "nano" else "a newer OpenCV"
             raise TrackerUnavailable(
-                f"--tracker {kind} needs {contrib} (cv2.{OPENCV_TRACKERS[kind]} is missing): {hint}"
+                f"{option} needs {contrib} (cv2.{OPENCV_TRACKERS[kind]} is missing): {hint}"
             )
         self.kind = kind
-        self._create = _nano_factory(nano_dir) if kind == "nano" else getattr(cv2, OPENCV_TRACKERS[kind]).create
+        self._create = (_nano_factory(nano_dir, option) if kind == "nano"
+                        else getattr(cv2, OPENCV_TRACKERS[kind]).create)
         self._tracker = None
         self._last: Box = (0.0, 0.0, 0.0, 0.0)
 
@@ -249,6 +292,78 @@ def _complete(path: Path, frames: int) -> bool:
         return len(read_result(path)) == frames
     except EvalError:
         return False
+
+
+# ------------------------------------------------------------------------------------------- run record
+
+RUN_RECORD = "run.json"  # what produced a tracker's result folder: checked before a run resumes into it
+# record key -> (how the command line names it, the entries that decide equality); entries not listed here
+# are shown only (paths: the same model or weights copied elsewhere give the same boxes)
+_IDENTITY = {"model": ("--model", ("template_sha256", "search_sha256")),
+             "nano": ("--nano-dir", ("backbone_sha256", "head_sha256"))}
+
+
+def _shown(value: object) -> str:
+    """A recorded setting as the message shows it."""
+    if value is None:
+        return "none"
+    if isinstance(value, dict):  # a model or weight folder: its path and the start of its main file's hash
+        digest = value.get("search_sha256") or value.get("backbone_sha256") or ""
+        return f"{value.get('folder')}" + (f" (sha256 {digest[:12]})" if digest else "")
+    return str(value)
+
+
+def run_record_differences(old: dict, new: dict) -> list[str]:
+    """'SETTING: OLD before, NEW now' for each setting that differs between two run records."""
+    if old.get("tracker") != new.get("tracker"):  # the rest differs as a consequence
+        return [f"--tracker: {_shown(old.get('tracker'))} before, {_shown(new.get('tracker'))} now"]
+    out = []
+    for key in sorted(set(old) | set(new)):
+        before, now = old.get(key), new.get(key)
+        if key == "hp":
+            before, now = before or {}, now or {}
+            for name in sorted(set(before) | set(now)):
+                if before.get(name) != now.get(name):
+                    out.append(f"--hp {name}: {before.get(name, 'unset')} before, {now.get(name, 'unset')} now")
+        elif key in _IDENTITY:
+            option, fields = _IDENTITY[key]
+            same = (isinstance(before, dict) and isinstance(now, dict)
+                    and all(before.get(f) == now.get(f) for f in fields))
+            if not same and before != now:
+                out.append(f"{option}: {_shown(before)} before, {_shown(now)} now")
+        elif key != "record" and before != now:
+            out.append(f"--{key}: {_shown(before)} before, {_shown(now)} now")
+    return out
+
+
+def claim_folder(folder: Path, record: dict) -> str | None:
+    """Check `record` (what this run would track with) against the one in `folder`, before tracking.
+
+    Other settings: EvalError naming each setting that differs (a resumed run used to skip every finished
+    sequence and report the old setting's scores as the new one's). No folder yet, or one without results:
+    the record is written. Results without a record (older versions): a warning to print, nothing written,
+    since they may come from other settings than this run's.
+    """
+    folder = Path(folder)
+    path = folder / RUN_RECORD
+    record = json.loads(json.dumps(record))  # as it reads back: tuples as lists, keys as strings
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise EvalError(f"{path}: unreadable run record ({exc}); delete the folder or use --name NEW") from None
+        if not isinstance(old, dict):
+            raise EvalError(f"{path}: not a run record (a JSON object); delete the folder or use --name NEW")
+        differences = run_record_differences(old, record)
+        if differences:
+            raise EvalError(f"{folder} holds results of other settings ({'; '.join(differences)}): give --name NEW "
+                            f"(or another --results) for these settings; nothing tracked")
+        return None
+    if folder.is_dir() and any(p.suffix in (".txt", STATES) and not p.name.startswith(".") for p in folder.iterdir()):
+        return (f"{folder} has results but no {RUN_RECORD} (written by an older dadiff-eval): their settings "
+                f"cannot be checked against this run's; resuming")
+    _write_atomic(path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+    return None
 
 
 # ------------------------------------------------------------------------------------------------ run

@@ -219,12 +219,12 @@ def write_benchmark(
         raise SceneError(f"{root}: exists and is not an empty folder; choose a new --out")
     if source == "library":  # fail early, before anything is written (the workers open their own)
         library_images(library or open_scene_library(), split)
+    if source == "skimage":  # likewise: without scikit-image an empty --out folder was left behind
+        load_photos(split)
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SceneError(f"{root}: cannot create ({exc.strerror or exc})") from None
-    if source == "skimage":  # fail early, before any worker starts
-        load_photos(split)
     workers = max(1, min(workers or os.cpu_count() or 1, sequences))
     jobs = [
         (root, f"seq{k + 1:03d}", [int(seed), k], split, frames, tuple(size), source, night, library, gusts)
