@@ -215,6 +215,21 @@ def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
                    help="(default: INFO)")
 
 
+SERVICE_GROUPS = ("MAVLink camera component (companion computer)", "follow controller (off by default)",
+                  "service logging")
+
+
+def service_options_given(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
+    """The service's options set away from `parser`'s defaults (give a fresh parser: --config sets defaults), but
+    --mavlink: without --mavlink they apply to nothing, and `--follow gimbal` ran a plain track and exited 0."""
+    given = []
+    for group in parser._action_groups:
+        if group.title in SERVICE_GROUPS:
+            given += [action.option_strings[0] for action in group._group_actions
+                      if action.dest != "mavlink" and getattr(args, action.dest, None) != action.default]
+    return given
+
+
 def _error(message: object) -> int:
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return 2

@@ -162,7 +162,7 @@ class Link:
             else:
                 self._throttle.log(
                     logging.WARNING, "quiet", "MAVLink %s: nothing received for %.0f s (still sending)",
-                    self.settings.url, now - quiet_since,
+                    self.settings.url, now - quiet_since, counted=False,
                 )  # fmt: skip
 
     def _open(self, now: float) -> None:

@@ -64,10 +64,14 @@ class Throttle:
         self._last: dict[str, float] = {}
         self._held: dict[str, int] = {}
 
-    def log(self, level: int, key: str, message: str, *args: object, exc_info: bool = False) -> None:
+    def log(self, level: int, key: str, message: str, *args: object, exc_info: bool = False,
+            counted: bool = True) -> None:
+        """`counted=False` for a condition checked every loop (a quiet link), not an event: the held-back
+        count would be loop ticks ('150 more since the last report' every 5 s of silence)."""
         now = time.monotonic()
         if now - self._last.get(key, -1e9) < self.every:
-            self._held[key] = self._held.get(key, 0) + 1
+            if counted:
+                self._held[key] = self._held.get(key, 0) + 1
             return
         held = self._held.pop(key, 0)
         self._last[key] = now

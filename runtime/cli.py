@@ -301,6 +301,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except SystemExit as exc:  # --help
         return exc.code if isinstance(exc.code, int) else 0
+    if args.mavlink and args.demo:
+        print(f"{PROG}: error: --demo tracks a generated sequence on its own; it does not run with --mavlink",
+              file=sys.stderr)
+        return 2
+    if not args.mavlink:
+        from dadiff.drone.cli import service_options_given
+
+        given = service_options_given(build_parser(), args)  # a fresh parser: --config changed the defaults
+        if given:
+            print(f"{PROG}: error: {', '.join(given)}: options of the MAVLink service, which runs only with "
+                  "--mavlink CONN", file=sys.stderr)
+            return 2
     if args.mavlink:
         from dadiff.drone.cli import run_mavlink
 

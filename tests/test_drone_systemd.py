@@ -51,6 +51,9 @@ def test_unit_file() -> None:
     assert int(service["WatchdogSec"]) > 0 and service["NotifyAccess"] == "main"
     assert service["ExecStart"].split()[1:] == ["--config", "/etc/dadiff/tracker.toml"]
     assert unit["Install"]["WantedBy"] == "multi-user.target"
+    # the graph cache where systemd makes a folder for the user (it has no home; ProtectHome hides one)
+    assert service["CacheDirectory"] == "dadiff"
+    assert "Environment=DADIFF_CACHE_DIR=/var/cache/dadiff/ort" in UNIT.read_text()
 
 
 def test_rotating_log_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -76,6 +79,20 @@ def test_throttle(caplog: pytest.LogCaptureFixture) -> None:
             throttle.log(logging.WARNING, "k", "bad packet")
         throttle.log(logging.WARNING, "other", "another")
     assert [r.getMessage() for r in caplog.records] == ["bad packet", "another"]
+
+
+def test_throttle_of_a_condition_counts_no_loop_ticks(caplog: pytest.LogCaptureFixture, monkeypatch) -> None:
+    now = [0.0]
+    monkeypatch.setattr("dadiff.drone.logs.time.monotonic", lambda: now[0])
+    throttle = Throttle(logging.getLogger("dadiff.test.quiet"), every=5)
+    with caplog.at_level(logging.WARNING, logger="dadiff.test.quiet"):
+        for second in range(11):  # one check a second: reported at 0, 5 and 10 s
+            now[0] = float(second)
+            throttle.log(logging.WARNING, "quiet", "nothing received", counted=False)
+            throttle.log(logging.WARNING, "bad", "bad packet")
+    quiet = [r.getMessage() for r in caplog.records if "nothing" in r.getMessage()]
+    assert quiet == ["nothing received"] * 3  # was: "(4 more since the last report)", loop ticks, not events
+    assert "(4 more since the last report)" in [r.getMessage() for r in caplog.records][-1]
 
 
 def test_split_device() -> None:

@@ -252,6 +252,23 @@ def test_demo_refuses_options_it_does_not_apply(tmp_path, capsys) -> None:
     assert "--output, --hp do not apply" in _one_error(capsys)
 
 
+def test_demo_with_mavlink_is_refused(tmp_path, capsys) -> None:
+    argv = ["--demo", "--demo-out", str(tmp_path / "d"), "--mavlink", "udpout:127.0.0.1:14599"]
+    assert cli.main(argv) == 2  # was: the service started, --demo silently dropped
+    assert "--demo tracks a generated sequence on its own" in _one_error(capsys)
+    assert not (tmp_path / "d").exists()
+
+
+def test_service_options_without_mavlink_are_refused(tmp_path, capsys) -> None:
+    config, video = tmp_path / "c.toml", str(tmp_path / "v.mp4")
+    config.write_text('follow = "gimbal"\n')
+    (tmp_path / "v.mp4").write_bytes(b"never read")
+    for argv in (["--video", video, "--init", "1,1,8,8", "--follow", "gimbal", "--loop", "--tracking-rate", "5"],
+                 ["--config", str(config), "--video", video, "--init", "1,1,8,8"]):
+        assert cli.main(argv) == 2  # was: a plain track, exit 0, the options applying to nothing
+        assert "--follow" in (err := _one_error(capsys)) and "options of the MAVLink service" in err
+
+
 def test_demo_out_naming_a_file_is_one_line(tmp_path, capsys) -> None:
     target = tmp_path / "afile"
     target.write_text("x")
