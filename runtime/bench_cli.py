@@ -225,22 +225,29 @@ def _flags_text(flags: dict[str, bool | None]) -> str:
     return ", ".join(f"{k} {'?' if v is None else 'yes' if v else 'no'}" for k, v in flags.items())
 
 
-def _use_nano(args: argparse.Namespace) -> bool:
-    """--nano: required (a missing weight is an error naming --nano); default: when the weights are here, and
-    one note on stderr when not (TrackerNano used to vanish from the report without a word); --no-nano: never."""
+def _use_nano(args: argparse.Namespace) -> tuple[bool, str | None]:
+    """Whether to time TrackerNano, and the note to print when the timing starts if not. --nano: required (a
+    missing weight is an error naming --nano); default: when the weights are here, else a note (TrackerNano
+    used to vanish from the report without a word); --no-nano: never, no note."""
     if args.nano is False:
-        return False
+        return False, None
     if args.nano is None:
         problem = nano_problem(args.nano_dir)
-        if problem is not None:  # stderr: with --json, stdout stays one JSON document
-            print(f"dadiff-bench: note: TrackerNano was not timed: {problem} (--no-nano silences this note)",
-                  file=sys.stderr)
-        return problem is None
+        if problem is None:
+            return True, None
+        return False, f"dadiff-bench: note: TrackerNano was not timed: {problem} (--no-nano silences this note)"
     try:
         OpenCVTracker("nano", nano_dir=args.nano_dir, option="--nano")  # checks the module and the files
     except EvalError as exc:
         raise BenchError(str(exc)) from None
-    return True
+    return True, None
+
+
+def _print_note(note: str | None) -> None:
+    """The note once every input has been checked (bad input is one error line, with no note before it); on
+    stderr, so that with --json stdout stays one JSON document."""
+    if note:
+        print(note, file=sys.stderr)
 
 
 def _nano_result(lane: BenchLane, run: BenchRun, night: Dataset | None, results: Path) -> dict:
@@ -329,10 +336,11 @@ def print_report(report: dict) -> None:
 def run_instructions(args: argparse.Namespace, models: list[Path]) -> dict:
     """Instructions per update of each model and of TrackerNano, counted under valgrind on one clip."""
     valgrind_path()
-    use_nano = _use_nano(args)
+    use_nano, note = _use_nano(args)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         video = write_night_video(Path(tmp), args.seed, min(args.clip, CLIP))  # the counter reads no more
         clip = write_clip(video.path, Path(tmp) / "clip.npy")
+        _print_note(note)
         counts = [count_updates("model", str(m), clip, video.first_box, m.name) for m in models]
         if use_nano:
             nano_dir = str(nano_files(args.nano_dir)[0].parent)  # `_use_nano` checked them, naming --nano
@@ -381,7 +389,7 @@ def run(args: argparse.Namespace) -> dict:
     if args.compare_torch:
         _checkpoint(args, models[0])  # before minutes of timing, not after
     threads = thread_count(args.threads)
-    use_nano = _use_nano(args)
+    use_nano, note = _use_nano(args)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         if args.sweep_steps:
             models += _sweep_models(models[0], args, Path(tmp))
@@ -393,6 +401,7 @@ def run(args: argparse.Namespace) -> dict:
         if use_nano:  # OpenCV's threads set to ours while it runs (`_use_nano` checked the weights)
             nano_tracker = OpenCVTracker("nano", nano_dir=args.nano_dir, option="--nano")
             lanes.append(BenchLane(nano_tracker, video, args.frames, cv2_threads=threads))
+        _print_note(note)
         with tqdm(total=args.frames * len(lanes), desc="frames", unit="frame", leave=False,
                   disable=args.json or not sys.stderr.isatty()) as bar:
             runs = run_lanes(lanes, args.warmup, args.interleave, progress=lambda _: bar.update())

@@ -71,7 +71,7 @@ def test_report_sets_each_model_against_tracker_nano(model_dir: Path, monkeypatc
 
     monkeypatch.setattr(bench_cli, "count_updates", fake_count)
     monkeypatch.setattr(bench_cli, "valgrind_path", lambda: "/usr/bin/valgrind")
-    monkeypatch.setattr(bench_cli, "_use_nano", lambda args: True)
+    monkeypatch.setattr(bench_cli, "_use_nano", lambda args: (True, None))
     monkeypatch.setattr(bench_cli, "nano_files", lambda folder: (Path("/weights/v2/backbone.onnx"), None))
     argv = [str(model_dir), "--instructions", "--clip", "5"]
     assert bench_cli.main(argv) == 0
