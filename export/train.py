@@ -39,10 +39,10 @@ from .losses import (
     restore_loss,
 )
 from .network import DaDiffNet, build_model
-from .train_check import check_train_values
+from .train_check import SetupError, check_train_values, resolved
 from .train_cli import build_parser, finish_line
 from .train_data import CropConfig, PairStream, make_day_source
-from .train_toml import config_chain, format_toml
+from .train_toml import config_chain, format_toml, key_file
 from .weight_average import WeightAverage
 
 DAY, NIGHT = 0.0, 1.0
@@ -151,21 +151,48 @@ def build_network(cfg: TrainConfig) -> DaDiffNet:
             nn.init.constant_(box.loc.head[3].bias, math.log(32.0))
         return net
     net = build_model(mc)
-    source = load_checkpoint(cfg.init).model.state_dict()  # strict for the checkpoint's own config
+    loaded = load_init(cfg.init)
+    source = loaded.model.state_dict()  # strict for the checkpoint's own config
     own = net.state_dict()
     # the stages share every key; an ablation without the tracking-oriented layer only drops align_track.*, and
     # a residual DaDiff block joining a trained tracker adds its gate align_scale (from 0), and fine_skip its
     # branch (gated from 0 too)
-    differ = sorted((set(source) ^ set(own)) - {k for k in set(source) | set(own)
-                                                if k.startswith(("align_track.", "fine_skip.")) or k == "align_scale"})
-    if differ:
-        raise ValueError(f"{cfg.init}: does not fit the configured model: {', '.join(differ[:5])}")
+    optional = {k for k in set(source) | set(own) if k.startswith(("align_track.", "fine_skip.")) or k == "align_scale"}
+    missing, unexpected = sorted(set(own) - set(source) - optional), sorted(set(source) - set(own) - optional)
+    if missing or unexpected:
+        parts = [f"{what}: {_some(keys)}" for what, keys in (("missing from the checkpoint", missing),
+                                                              ("unexpected, not in the configured model", unexpected))
+                 if keys]
+        family = loaded.config.family
+        advice = f"; set family = \"{family}\" or start from a {mc.family} checkpoint" if family != mc.family else ""
+        raise SetupError("init", f"'init' is {cfg.init!r}: its {family} model does not fit the configured "
+                                 f"{mc.family} model ({'; '.join(parts)}){advice}")
     reshaped = shape_mismatches(own, source)
     if reshaped:  # e.g. a model folder's checkpoint set to a smaller search crop than training uses
-        raise ValueError(f"{cfg.init}: holds tensors of other shapes than the configured model: "
-                         f"{', '.join(reshaped[:3])}; start from a training state (export/resume/) instead")
+        raise SetupError("init", f"'init' is {cfg.init!r}: holds tensors of other shapes than the configured model: "
+                                 f"{', '.join(reshaped[:3])}; start from a training state (export/resume/) instead")
     net.load_state_dict({k: v for k, v in source.items() if k in own}, strict=False)
     return net
+
+
+def _some(keys: list[str], limit: int = 4) -> str:
+    return ", ".join(keys[:limit]) + (f" and {len(keys) - limit} more" if len(keys) > limit else "")
+
+
+def load_init(init: str) -> Any:
+    """The `init` checkpoint; a path that is not there says where it was looked for (relative paths are
+    taken from the working folder) and when its run has only got as far as last.pt."""
+    path = Path(init).expanduser()
+    if not path.exists():
+        hint = ""
+        if path.name == "final.pt" and (path.parent / "last.pt").is_file():
+            hint = "; that run has not finished: start from its last.pt, or finish the run first"
+        raise SetupError("init", f"'init' is {init!r}: no such file ({resolved(init)}); expected \"imagenet\" or "
+                                 f"a dadiff checkpoint{hint}")
+    try:
+        return load_checkpoint(path)
+    except CheckpointError as e:
+        raise SetupError("init", f"'init': {e}") from None
 
 
 def freeze_early_blocks(net: DaDiffNet, blocks: int) -> list[nn.Module]:
@@ -190,7 +217,9 @@ def freeze_all_but(net: DaDiffNet, prefixes: Sequence[str]) -> list[nn.Module]:
     names = [n for n, _ in net.named_parameters()]
     for prefix in prefixes:
         if not any(n.startswith(prefix) for n in names):
-            raise ValueError(f"train_only: no parameter of the network starts with {prefix!r}")
+            tops = sorted({n.split(".")[0] + "." for n in names})
+            raise SetupError("train_only", f"'train_only' has {prefix!r}, but no parameter of the network starts "
+                                           f"with {prefix!r} (its parameter names start with {', '.join(tops)})")
     keep = tuple(prefixes)
     for name, p in net.named_parameters():
         if not name.startswith(keep):
@@ -264,16 +293,26 @@ class Trainer:
         """The teacher and the 1x1 conv mapping our search neck to its feature width (never exported)."""
         if not self.cfg.teacher:
             return None, None
-        from .teacher import TEACHER_STRIDE, NanoTrackTeacher
+        from .teacher import BACKBONE, HEAD, TEACHER_STRIDE, NanoTrackTeacher
 
+        where = f"'teacher' is {self.cfg.teacher!r}"
         if self.net.cfg.tracker.stride * self.net.cfg.head_upsample != TEACHER_STRIDE or \
                 len(self.net.cfg.level_names) != 1:
-            raise ValueError(f"teacher distillation needs a one-level stride-{TEACHER_STRIDE} family "
-                             f"(dadiff-mobile), not {self.net.cfg.family}")
-        teacher = NanoTrackTeacher(self.cfg.teacher)
+            raise SetupError("teacher", f"{where}, but teacher distillation needs a one-level stride-{TEACHER_STRIDE} "
+                                        f"family (dadiff-mobile), not {self.net.cfg.family}; set family = "
+                                        f"\"dadiff-mobile\" or drop 'teacher'")
+        folder = Path(self.cfg.teacher).expanduser()
+        if not folder.is_dir():
+            raise SetupError("teacher", f"{where}: {'not a folder' if folder.exists() else 'no such folder'} "
+                                        f"({resolved(self.cfg.teacher)}); expected the NanoTrack v3 ONNX folder")
+        missing = [name for name in (BACKBONE, HEAD) if not (folder / name).is_file()]
+        if missing:
+            raise SetupError("teacher", f"{where}: the folder ({resolved(self.cfg.teacher)}) lacks "
+                                        f"{', '.join(missing)} (NanoTrack v3 ONNX)")
+        teacher = NanoTrackTeacher(folder)
         adapter = nn.Conv2d(self.net.cfg.channels, 96, 1)
         if self.cfg.init != "imagenet":  # a stage that continues one with the teacher keeps its adapter
-            saved = read_checkpoint_file(self.cfg.init).get("teacher_adapter")
+            saved = read_checkpoint_file(Path(self.cfg.init).expanduser()).get("teacher_adapter")
             if saved is not None:
                 adapter.load_state_dict(saved)
         return teacher, adapter.to(self.device)
@@ -474,6 +513,19 @@ def uses_night(cfg: TrainConfig) -> bool:
     return cfg.stage == "dadiff" or cfg.lambda_night_trc > 0 or cfg.lambda_night_distill > 0
 
 
+def day_source(i: int, spec: dict[str, Any]) -> Any:
+    """Day source `i` (from 1) of the config; what only reading its data can find (a folder that is not
+    there, a library not fetched) names the entry, and for a missing folder, where it was looked for."""
+    where = f"'day' entry {i} (kind {spec.get('kind')!r})"
+    for key in ("root", "cutouts"):
+        if isinstance(spec.get(key), str) and not Path(spec[key]).expanduser().exists():
+            raise SetupError("day", f"{where}: '{key}' is {spec[key]!r}: no such folder ({resolved(spec[key])})")
+    try:
+        return make_day_source(spec)
+    except ValueError as e:
+        raise SetupError("day", f"{where}: {e}") from None
+
+
 def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0) -> DataLoader:
     """The pair stream from `start_step` on: a resumed run continues with pairs it has not seen (the stream
     is seeded by the step it starts at; step 0 is the stream of a run that was never interrupted)."""
@@ -481,7 +533,7 @@ def data_loader(cfg: TrainConfig, net: DaDiffNet, rank: int, start_step: int = 0
     crop = CropConfig(exemplar=tr.exemplar_size, instance=tr.instance_size, stride=tr.stride,
                       score_size=tr.score_size, context=tr.context_amount, search_scale=cfg.search_scale,
                       search_shift=cfg.search_shift)
-    stream = PairStream([make_day_source(s) for s in cfg.day], cfg.night, crop, cfg.seed, rank,
+    stream = PairStream([day_source(i, s) for i, s in enumerate(cfg.day, 1)], cfg.night, crop, cfg.seed, rank,
                         with_night=uses_night(cfg), night_styles=cfg.night_styles, start_step=start_step,
                         night_pairs=cfg.night_pairs, night_path_lamps=cfg.night_path_lamps,
                         negative_pairs=cfg.negative_pairs)
@@ -582,6 +634,9 @@ def main(argv: list[str] | None = None) -> int:
             print(format_toml(asdict(cfg)), end="")
             return 0
         trainer = run(cfg, args.max_steps, device=args.device, max_minutes=args.max_minutes)
+    except SetupError as e:  # found as the run is set up: name the file that sets the key
+        print(f"dadiff-train: error: {key_file(args.config, e.key)}: {e}", file=sys.stderr)
+        return 2
     except (ValueError, CheckpointError) as e:
         print(f"dadiff-train: error: {e}", file=sys.stderr)
         return 2

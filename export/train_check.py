@@ -6,7 +6,9 @@ is one line naming the file and the key instead of a traceback minutes into a ru
 
 from __future__ import annotations
 
+import difflib
 import math
+import os
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -16,9 +18,38 @@ from dadiff.runtime.evaluation.night import NIGHT_STYLES
 from .config import FAMILIES, ModelConfig, default_config, validate_config, with_overrides
 from .train_cli import SEED_MAX
 
-# Day data kinds (export/train_data.py make_day_source) and the ones that read a folder `root`.
-DAY_KINDS = ("scenes", "got10k", "otb", "sequences", "images")
+# The keys of each day data kind (export/train_data.py make_day_source reads them) and what each takes;
+# `kind` aside, all optional but `root` (ROOT_KINDS: the folder to read).
+_SCENE_KEYS = {"kind": "a string", "split": "a string", "pairs": "an integer", "source": "a string",
+               "companions": "a number", "stretch": "a number", "cutouts": "a string"}
+_SEQUENCE_KEYS = {"kind": "a string", "root": "a string", "match": "a string", "far": "a number",
+                  "one_night": "true or false"}
+DAY_KEYS: dict[str, dict[str, str]] = {"scenes": _SCENE_KEYS, "got10k": _SEQUENCE_KEYS, "otb": _SEQUENCE_KEYS,
+                                       "sequences": _SEQUENCE_KEYS, "images": {"kind": "a string", "root": "a string"}}
+DAY_KINDS = tuple(DAY_KEYS)
 ROOT_KINDS = ("got10k", "otb", "sequences", "images")
+SOURCE_SHARES = ("companions", "stretch", "far")  # shares 0-1 of a source's scenes or pairs
+LIBRARY_ONLY = ("companions", "stretch", "cutouts")  # scene options that only library scenes have
+SCENE_SOURCES = ("skimage", "library")
+
+
+class SetupError(ValueError):
+    """A config key whose value fails only as the run is set up (a path, the network's parameter names):
+    `key` lets dadiff-train name the config file that sets it."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+
+
+def resolved(path: str) -> str:
+    """`path` as the run reads it: relative paths are taken from the working folder, not the config's, which
+    a user running from elsewhere cannot tell from the path alone."""
+    full = Path(path).expanduser()
+    if full.is_absolute():
+        return os.path.normpath(full)
+    return f"{os.path.abspath(full)}; a relative path is taken from the working folder, {Path.cwd()}"
+
 
 # (low, inclusive) per numeric key; keys not listed only need the right type.
 MINIMUM: dict[str, tuple[float, bool]] = {
@@ -92,6 +123,42 @@ def _check_day(sources: list[dict[str, Any]]) -> None:
             raise ValueError(f"'day' entry {i} has kind {kind!r}; expected one of {', '.join(DAY_KINDS)}")
         if kind in ROOT_KINDS and not isinstance(source.get("root"), str):
             raise ValueError(f"'day' entry {i} (kind {kind!r}) has no 'root' (the folder to read)")
+        _check_source(f"'day' entry {i} (kind {kind!r})", kind, source)
+
+
+def _unknown_source_key(key: str, value: Any, kind: str) -> str:
+    """`key = value`, and the key it is likely a misspelling of, or the kinds it belongs to."""
+    close = difflib.get_close_matches(key, DAY_KEYS[kind], n=1)
+    others = [k for k, keys in DAY_KEYS.items() if key in keys]
+    hint = f" (did you mean {close[0]!r}?)" if close else f" (a key of {', '.join(others)} sources)" if others else ""
+    return f"{key} = {value!r}{hint}"
+
+
+def _check_source(where: str, kind: str, source: dict[str, Any]) -> None:
+    """Each key of one day source: a misspelt option (`strech`) or a sequence option on scenes used to be
+    dropped silently, and a bad value surfaced only as the run started, without the file's name."""
+    keys = DAY_KEYS[kind]
+    unknown = [_unknown_source_key(k, v, kind) for k, v in source.items() if k not in keys]
+    if unknown:
+        raise ValueError(f"{where} has unknown keys: {', '.join(unknown)}; kind {kind!r} takes "
+                         f"{', '.join(keys)}")
+    for key, value in source.items():
+        if not _fits(value, keys[key]):
+            raise ValueError(f"{where}: '{key}' is {value!r}; expected {keys[key]}")
+        if key in SOURCE_SHARES and not 0 <= value <= 1:
+            raise ValueError(f"{where}: '{key}' is {value!r}; expected a share from 0 to 1")
+    if source.get("pairs", 1) < 1:
+        raise ValueError(f"{where}: 'pairs' is {source['pairs']!r}; expected >= 1 (pairs drawn from each scene)")
+    if source.get("split", "train") != "train":
+        raise ValueError(f"{where}: 'split' is {source['split']!r}; expected \"train\" (the test split is held "
+                         f"out: the evaluation scores trackers on it)")
+    scenes = source.get("source", "skimage")
+    if kind == "scenes" and scenes not in SCENE_SOURCES:
+        raise ValueError(f"{where}: 'source' is {scenes!r}; expected one of {', '.join(SCENE_SOURCES)}")
+    for key in LIBRARY_ONLY if kind == "scenes" and scenes != "library" else ():
+        if key in source and (key == "cutouts" or source[key]):  # a share of 0 asks for nothing
+            raise ValueError(f"{where}: '{key}' is {source[key]!r}, which applies to library scenes only; add "
+                             f"source = \"library\" or drop '{key}'")
 
 
 def _check_range(key: str, value: Any) -> None:

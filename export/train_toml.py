@@ -60,6 +60,15 @@ def config_chain(path: str | Path) -> list[tuple[Path, dict[str, Any]]]:
         current = following
 
 
+def key_file(path: str | Path, key: str) -> Path:
+    """The file of `path`'s chain whose `key` the run uses (the last that sets it; `path` when none does), so
+    an error found only as the run is set up names the file to edit."""
+    for file, own in reversed(config_chain(path)):
+        if key in own:
+            return file
+    return Path(path)
+
+
 def _toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"

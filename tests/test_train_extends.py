@@ -17,7 +17,7 @@ out = "runs/base"
 steps = 40
 lr = 0.001
 train_only = ["head."]
-day = [{ kind = "scenes", split = "train" }, { kind = "scenes", split = "test" }]
+day = [{ kind = "scenes", split = "train" }, { kind = "scenes", split = "train", pairs = 2 }]
 """
 
 
@@ -44,7 +44,7 @@ def test_keys_given_replace_the_base_values_whole_and_the_rest_is_inherited(tmp_
 def test_a_config_without_extends_reads_as_before(tmp_path) -> None:
     path = _write(tmp_path, "base.toml", BASE)
     assert train.TrainConfig.from_toml(path).day == [{"kind": "scenes", "split": "train"},
-                                                       {"kind": "scenes", "split": "test"}]
+                                                       {"kind": "scenes", "split": "train", "pairs": 2}]
 
 
 @pytest.mark.parametrize(("files", "blamed", "message"), [
