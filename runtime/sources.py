@@ -255,7 +255,7 @@ class FolderSource:
     @staticmethod
     def _first_box(path: Path) -> tuple[float, float, float, float]:
         try:
-            lines = [line for line in path.read_text().splitlines() if line.strip()]
+            lines = [line for line in path.read_text(encoding="utf-8-sig").splitlines() if line.strip()]
         except (OSError, UnicodeDecodeError) as exc:
             raise SourceError(f"{path}: cannot read ({exc})") from None
         if not lines:

@@ -215,7 +215,7 @@ def test_bad_input_gives_one_line_and_exit_2(bench, tmp_path, capsys):
     for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
         (short / f"{seq}.txt").write_text("1,2,3,4\n")
     assert main(["score", "--dataset", str(bench), str(short)]) == 2
-    assert "1 boxes, but seq001_day has 4" in _one_error_line(capsys)
+    assert "1 box, but seq001_day has 4 ground-truth frames" in _one_error_line(capsys)  # was "1 boxes"
     assert main(["generate", "--out", str(bench), "--sequences", "1"]) == 2
     assert "not an empty folder" in _one_error_line(capsys)
 

@@ -111,13 +111,14 @@ def test_pysot_json_layout(tmp_path):
         assert math.isnan(seq.boxes[1, 0])
 
 
-def test_frame_and_box_count_mismatch_warns_and_trims(tmp_path, capsys):
+def test_frame_and_box_count_mismatch_is_refused_not_trimmed(tmp_path):
+    """Trimming to the shorter side (with a warning) paired OTB's later-starting labels with the first frames;
+    test_dataset_layouts.py has the cases and the messages."""
     root = tmp_path / "OTB"
     _frames(root / "Car" / "img", 3)
-    (root / "Car" / "groundtruth_rect.txt").write_text("1,2,3,4\n1,2,3,4\n")
-    dataset = load_dataset(root)
-    assert len(dataset.sequences[0]) == 2 and len(dataset.sequences[0].frames) == 2
-    assert "2 boxes for 3 frames" in capsys.readouterr().err
+    (root / "Car" / "groundtruth_rect.txt").write_text("1,2,3,4\n1,2,3,4\n\n")
+    with pytest.raises(DatasetError, match=r"groundtruth_rect.txt: 2 boxes for 3 frames in .*img; need one line"):
+        load_dataset(root)
 
 
 def test_unknown_layout_names_what_was_expected(tmp_path):
@@ -130,7 +131,7 @@ def test_unknown_layout_names_what_was_expected(tmp_path):
 
 def test_attribute_flags_of_unknown_length():
     assert parse_attributes("SV, OCC LR", "x") == ("SV", "OCC", "LR")
-    assert parse_attributes("1 0 1 0 0 0 0 0 0 0 0 1", "x") == ("SV", "LR", "SO")
+    assert parse_attributes("1 0 1 0 0 0 0 0 0 0 0 1", "x") == ("SV", "LR", "SOB")
     with pytest.raises(DatasetError, match="3 attribute flags"):
         parse_attributes("1,0,1", "x")
 

@@ -122,6 +122,12 @@ def test_folder_natural_order_and_img_subfolder(tmp_path: Path) -> None:
     assert source.init_box is None
 
 
+def test_folder_truth_with_a_byte_order_mark(tmp_path: Path) -> None:
+    cv2.imwrite(str(tmp_path / "1.jpg"), IMG)
+    (tmp_path / "groundtruth_rect.txt").write_text("\ufeff4,5,6,7\n", encoding="utf-8")  # as Windows tools save
+    assert sources.open_source(str(tmp_path)).init_box == (4.0, 5.0, 6.0, 7.0)
+
+
 def test_folder_skips_an_image_of_another_size(tmp_path: Path) -> None:
     """A frame of another size was tracked as if its pixels were the first frame's; the target was lost."""
     for i in range(4):

@@ -54,7 +54,7 @@ from .evaluate import (
 )
 from .fixed_camera import LabelSettings, read_video, write_fixed_camera_benchmark
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
-from .metrics import paired_difference
+from .metrics import Scores, paired_difference
 from .night import NIGHT_STYLES
 from .photos import PHOTO_SPLITS
 from .plots import write_plots
@@ -130,7 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     score = sub.add_parser("score", parents=[common], help="score result folders of any tracker")
     score.add_argument("dirs", nargs="+", type=Path, metavar="DIR", help="tracker result folders, or their parent")
     score.add_argument(
-        "--json", action="store_true", help='print {tracker: {"success", "norm_precision", "precision"}}'
+        "--json", action="store_true", help='print {tracker: {"success", "norm_precision", "precision"}}; with '
+        '--attributes also "attributes": {name: {"sequences", "success", "norm_precision", "precision"}}'
     )
     score.add_argument("--plots", type=Path, help="also draw plots into this folder")
     score.add_argument("--against", metavar="TRACKER",
@@ -333,13 +334,45 @@ def _pick(item: TrackerScores, attribute: str | None):
     return item.overall if attribute is None else item.by_attribute[attribute]
 
 
+def attribute_names(dataset: Dataset, wanted: bool, label: str) -> list[str]:
+    """The attributes to report under --attributes; a note on stderr when there are none (the option used to
+    print nothing more, silently, which read as if the dataset's attributes had been lost)."""
+    if not wanted:
+        return []
+    names = dataset.attributes()
+    if not names:
+        print(f"{PROG}: note: --attributes: no sequence of {label} has attributes (attributes.json, "
+              "att/<seq>.txt or a pysot .json's attr); overall scores only", file=sys.stderr)
+    return names
+
+
+def _scores_json(s: Scores) -> dict[str, float]:
+    return {"success": s.success, "norm_precision": s.norm_precision, "precision": s.precision}
+
+
+def scores_table(dataset: Dataset, scores: Sequence[TrackerScores], names: list[str]) -> dict:
+    """`score --json`'s document: overall scores per tracker, and per attribute when `names` are given
+    (--attributes used to be left out of the JSON silently)."""
+    table = {}
+    for item in scores:
+        entry: dict = _scores_json(item.overall)
+        if names:
+            entry["attributes"] = {
+                attr: {"sequences": sum(attr in q.attributes for q in dataset.sequences),
+                       **_scores_json(item.by_attribute[attr])}
+                for attr in names
+            }
+        table[item.name] = entry
+    return table
+
+
 def report(
     dataset: Dataset, scores: list[TrackerScores], attributes: bool, plots: Path | None, subset: list[str] | None
 ) -> None:
     """Print the overall table (and per attribute), then draw the plots."""
     label = dataset.name + (f" ({' '.join(subset)})" if subset else "")
+    names = attribute_names(dataset, attributes, label)  # its note before the tables, not between them
     print(format_table(f"{label}: {sequence_count(len(dataset.sequences))}", scores))
-    names = dataset.attributes() if attributes else []
     for attr in names:
         count = sum(attr in s.attributes for s in dataset.sequences)
         print()
@@ -486,20 +519,15 @@ def cmd_score(args: argparse.Namespace) -> int:
     scores = [score_folder(dataset, folder, name) for name, folder in result_folders(args.dirs, dataset)]
     differences = format_differences(scores, args.against) if args.against else None
     if args.json:
-        table = {
-            s.name: {
-                "success": s.overall.success,
-                "norm_precision": s.overall.norm_precision,
-                "precision": s.overall.precision,
-            }
-            for s in scores
-        }
-        print(json.dumps(table, indent=2))
+        label = dataset.name + (f" ({' '.join(args.sequences)})" if args.sequences else "")
+        names = attribute_names(dataset, args.attributes, label)
+        print(json.dumps(scores_table(dataset, scores, names), indent=2))
         if differences:
             print(differences, file=sys.stderr)  # stdout stays one JSON document
         if args.plots:
-            label = dataset.name + (f" ({' '.join(args.sequences)})" if args.sequences else "")
             write_plots({s.name: s.overall for s in scores}, args.plots, label)
+            for attr in names:
+                write_plots({s.name: s.by_attribute[attr] for s in scores}, args.plots, label, attr)
         return 0
     report(dataset, scores, args.attributes, args.plots, args.sequences)
     if differences:

@@ -3,16 +3,26 @@
 Layouts (`load_dataset(path)` tells them apart):
 
 - official: `path/data_seq/<seq>/` frames + `path/anno/<seq>.txt` (UAVDark70, NUT-L, NUT-LR, NAT2021-test);
-  optional attribute files `path/att/<seq>.txt` (or `attribute/`).
+  optional attribute files `path/att/<seq>.txt` (or `attribute/`, `anno/att/`). UAV123 as downloaded has
+  one more level, `data_seq/UAV123/<seq>/` + `anno/UAV123/<seq>.txt` (+ `anno/UAV123/att/`), and keeps
+  UAV20L's boxes in `anno/UAV20L/` over the same frames: `path` picks `anno/<path's name>/` (or the only
+  folder in anno/), `path/anno/<NAME>` picks that one.
 - otb: `path/<seq>/img/` frames + `path/<seq>/groundtruth_rect.txt` (OTB, UAV123, the generated night
-  benchmark); OTB's two-target folders (`groundtruth_rect.1.txt`, `.2.txt`) become `<seq>-1`, `<seq>-2`.
+  benchmark); OTB's two-target folders (`groundtruth_rect.1.txt`, `.2.txt`) become `<seq>-1`, `<seq>-2`;
+  attribute files `path/att/<seq>.txt` as above. Folders with img/ but no such file are skipped with a warning.
 - got10k: `path/<seq>/` frames + `path/<seq>/groundtruth.txt` (sequence order from `list.txt` if present).
 - json: a pysot-toolkit file (`path` itself, or `path/<folder name>.json`): `{seq: {"img_names": [...],
   "gt_rect": [...], "attr": [...]}}`, image paths relative to the file's folder.
 
+Frames are taken in dadiff-run's order (`sources.image_files`: by number, so 2.jpg before 10.jpg), and a
+sequence needs exactly one box line per frame: fewer lines (OTB labels some sequences from a later frame,
+GOT-10k's test split only the first) or more (a missing frame) would pair boxes with the wrong frames, so
+they are refused, not trimmed. Blank lines do not count.
+
 Any layout may carry `path/attributes.json` = `{seq: ["SV", "OCC", ...]}`. An attribute file holds names
 (comma or space separated) or 0/1 flags in a known order (`ATTRIBUTE_ORDERS`). Boxes are x, y, w, h lines
 separated by commas, tabs or spaces; NaN rows stay NaN (the metrics count them as the toolkit does).
+Text files may start with a UTF-8 byte-order mark (Windows editors write one).
 """
 
 from __future__ import annotations
@@ -26,14 +36,18 @@ from pathlib import Path
 
 import numpy as np
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+from ..sources import image_dir, image_files
+
 NUT_LR_ATTRIBUTES = ("ARC", "BC", "CM", "FM", "OCC", "SV", "SOB", "VC", "IV", "LAI")
-UAV123_ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SO")
+UAV123_ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SOB")  # SOB: similar object
 ATTRIBUTE_ORDERS = {len(NUT_LR_ATTRIBUTES): NUT_LR_ATTRIBUTES, len(UAV123_ATTRIBUTES): UAV123_ATTRIBUTES}
 EXPECTED_LAYOUTS = (
-    "data_seq/ + anno/ (UAVDark70, NUT-L, NUT-LR, NAT2021), <seq>/img/ + <seq>/groundtruth_rect.txt "
-    "(OTB, UAV123), <seq>/groundtruth.txt (GOT-10k), or a pysot-toolkit .json file"
+    "data_seq/ + anno/ (UAVDark70, NUT-L, NUT-LR, NAT2021, UAV123 as downloaded), <seq>/img/ + "
+    "<seq>/groundtruth_rect.txt (OTB, UAV123), <seq>/groundtruth.txt (GOT-10k), or a pysot-toolkit .json file"
 )
+ATTRIBUTE_FOLDERS = ("att", "attribute")
+OTB_TRUTH = re.compile(r"groundtruth_rect(?:\.(\d+))?\.txt")  # groundtruth_rect.txt, OTB's .1.txt / .2.txt
+SPLIT_CLIP = re.compile(r"(.+)_(\d+)")  # UAV123's bird1_1, bird1_2: parts of data_seq/UAV123/bird1
 _SPLIT = re.compile(r"[,\t ]+")
 
 
@@ -77,10 +91,17 @@ class Dataset:
         return replace(self, sequences=kept)
 
 
+def plural(count: int, word: str, words: str | None = None) -> str:
+    """'1 box', '2 boxes': the count messages ('1 boxes for 6 frames' read wrong)."""
+    return f"{count} {word if count == 1 else words or word + 's'}"
+
+
 def read_text(path: Path) -> str:
-    """A dataset's text file; unreadable or not text (a damaged file) is one DatasetError naming it."""
+    """A dataset's text file; unreadable or not text (a damaged file) is one DatasetError naming it.
+
+    utf-8-sig: a byte-order mark (Notepad's) was kept as part of the first number and refused the file."""
     try:
-        return Path(path).read_text()
+        return Path(path).read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise DatasetError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
@@ -109,10 +130,13 @@ def read_boxes(path: Path) -> np.ndarray:
 
 
 def list_frames(folder: Path) -> tuple[Path, ...]:
-    """Image files directly in `folder`, sorted by name."""
-    frames = tuple(sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES))
+    """A sequence folder's image files (in its img/ subfolder if it has one) in dadiff-run's order.
+
+    `sources.image_files` sorts by number (1.jpg, 2.jpg, ..., 10.jpg); sorting the names as text put 10.jpg
+    before 2.jpg and scored every frame from the third on against another frame's box."""
+    frames = tuple(p for p in image_files(folder) if p.is_file())
     if not frames:
-        raise DatasetError(f"{folder}: no image files")
+        raise DatasetError(f"{image_dir(folder)}: no image files")
     return frames
 
 
@@ -134,11 +158,35 @@ def _warn(message: str) -> None:
 
 
 def _make_sequence(name: str, frames: tuple[Path, ...], boxes: np.ndarray, source: Path) -> Sequence:
-    if len(frames) != len(boxes):
-        _warn(f"{source}: {len(boxes)} boxes for {len(frames)} frames; using the first {min(len(frames), len(boxes))}")
-        n = min(len(frames), len(boxes))
-        frames, boxes = frames[:n], boxes[:n]
-    return Sequence(name, frames, boxes)
+    """One box line per frame, or a DatasetError saying why not and how to fix it.
+
+    Trimming the longer side (what a warning used to announce) paired boxes with the wrong frames: OTB labels
+    some sequences from a later frame (David from frame 300), and a missing frame shifts every later box."""
+    if len(frames) == len(boxes):
+        return Sequence(name, frames, boxes)
+    where = f" in {frames[0].parent}" if frames else ""
+    counts = f"{plural(len(boxes), 'box', 'boxes')} for {plural(len(frames), 'frame')}{where}"
+    if len(boxes) == 1:
+        raise DatasetError(f"{source}: only the first frame is labelled ({counts}); nothing to score "
+                           "(GOT-10k's test split is scored by its evaluation server)")
+    if len(boxes) < len(frames):
+        why = "the labels may start at a later frame, as in OTB's David, or stop early"
+        fix = "remove the frames without a box"
+    else:
+        why = "a frame is missing, so every later box would be paired with the wrong frame"
+        fix = "restore the missing frames"
+    raise DatasetError(f"{source}: {counts}; need one line per frame ({why}): {fix}, or give a pysot-toolkit "
+                       ".json whose img_names list the frames of each box")
+
+
+def _with_attribute_file(sequence: Sequence, folders: list[Path], *names: str) -> Sequence:
+    """`sequence` with the attributes of the first `<folder>/<name>.txt` that exists (names in order)."""
+    for folder in folders:
+        for name in (sequence.name, *names):
+            att = folder / f"{name}.txt"
+            if att.is_file():
+                return replace(sequence, attributes=parse_attributes(read_text(att), str(att)))
+    return sequence
 
 
 def _official(path: Path) -> list[Sequence]:
@@ -149,25 +197,80 @@ def _official(path: Path) -> list[Sequence]:
         if not gt.is_file():
             raise DatasetError(f"{gt}: missing annotation for sequence {folder.name}")
         sequence = _make_sequence(folder.name, list_frames(folder), read_boxes(gt), gt)
-        for att in (path / "att" / f"{folder.name}.txt", path / "attribute" / f"{folder.name}.txt"):
-            if att.is_file():
-                sequence = replace(sequence, attributes=parse_attributes(read_text(att), str(att)))
-                break
-        sequences.append(sequence)
+        sequences.append(_with_attribute_file(sequence, [path / f for f in ATTRIBUTE_FOLDERS] + [anno / "att"]))
     return sequences
 
 
-def _otb(path: Path) -> list[Sequence]:
+def _official_nested(anno: Path) -> list[Sequence]:
+    """UAV123 as downloaded: boxes in `anno/<NAME>/<seq>.txt`, frames in `data_seq/<NAME>/<seq>/` (or in the
+    only folder of data_seq/: UAV20L's boxes are over UAV123's frames), attributes in `anno/<NAME>/att/`."""
+    root = anno.parent.parent
+    frames_root = root / "data_seq" / anno.name
+    if not frames_root.is_dir():
+        inside = [p for p in (root / "data_seq").iterdir() if p.is_dir()]
+        if len(inside) != 1:
+            raise DatasetError(f"{frames_root}: missing (the frames of the boxes in {anno})")
+        frames_root = inside[0]
     sequences = []
-    for folder in sorted(p for p in path.iterdir() if p.is_dir() and (p / "img").is_dir()):
-        single = folder / "groundtruth_rect.txt"
-        multi = sorted(folder.glob("groundtruth_rect.*.txt"))
-        frames = list_frames(folder / "img")
-        if single.is_file():
-            sequences.append(_make_sequence(folder.name, frames, read_boxes(single), single))
-        for gt in multi:
-            target = gt.name.split(".")[1]
-            sequences.append(_make_sequence(f"{folder.name}-{target}", frames, read_boxes(gt), gt))
+    for gt in sorted(p for p in anno.iterdir() if p.suffix == ".txt" and p.is_file()):
+        folder = frames_root / gt.stem
+        if not folder.is_dir():
+            clip = SPLIT_CLIP.fullmatch(gt.stem)
+            if clip and (frames_root / clip[1]).is_dir():
+                raise DatasetError(
+                    f"{gt}: a part of {frames_root / clip[1]} whose frame range is not in the download; give a "
+                    f"pysot-toolkit {anno.name}.json instead (its img_names list each part's frames, relative to "
+                    "the .json's folder)")
+            raise DatasetError(f"{folder}: missing (the frames of {gt})")
+        sequence = _make_sequence(gt.stem, list_frames(folder), read_boxes(gt), gt)
+        sequences.append(_with_attribute_file(sequence, [anno / f for f in ATTRIBUTE_FOLDERS]))
+    return sequences
+
+
+def _nested_anno(path: Path) -> Path | None:
+    """The `anno/<NAME>` folder to read when anno/ holds one folder per dataset (UAV123 as downloaded) and no
+    boxes of its own; None for the flat official layout."""
+    anno = path / "anno"
+    if any(p.suffix == ".txt" for p in anno.iterdir()):
+        return None
+    names = sorted(p for p in anno.iterdir() if p.is_dir() and p.name not in ATTRIBUTE_FOLDERS
+                   and any(q.suffix == ".txt" for q in p.iterdir()))
+    if not names:
+        return None
+    if (anno / path.name) in names:
+        return anno / path.name
+    if len(names) == 1:
+        return names[0]
+    raise DatasetError(f"{path}: anno/ holds the boxes of {len(names)} datasets; give one of: "
+                       f"{', '.join(str(p) for p in names)}")
+
+
+def _sequence_folders(path: Path) -> list[Path]:
+    """OTB-style sequence folders: img/, or frames beside a groundtruth*.txt (not results or plots folders)."""
+    folders = []
+    for folder in sorted(p for p in path.iterdir() if p.is_dir()):
+        if (folder / "img").is_dir() or any(f.name.startswith("groundtruth") for f in folder.glob("*.txt")):
+            folders.append(folder)
+    return folders
+
+
+def _otb(path: Path) -> list[Sequence]:
+    sequences, skipped = [], []
+    for folder in _sequence_folders(path):
+        truths = sorted((int(m[1] or 0), m[1] or "", folder / m[0])
+                        for f in folder.iterdir() if (m := OTB_TRUTH.fullmatch(f.name)))
+        if not truths:
+            others = sorted(f.name for f in folder.glob("*.txt"))
+            skipped.append(f"{folder.name} ({'has ' + ', '.join(others[:2]) if others else 'no ground truth'})")
+            continue
+        frames = list_frames(folder)
+        for _, target, gt in truths:
+            name = f"{folder.name}-{target}" if target else folder.name
+            sequence = _make_sequence(name, frames, read_boxes(gt), gt)
+            sequences.append(_with_attribute_file(sequence, [path / f for f in ATTRIBUTE_FOLDERS], folder.name))
+    if skipped:
+        shown = ", ".join(skipped[:5]) + (", ..." if len(skipped) > 5 else "")
+        _warn(f"{path}: skipped {plural(len(skipped), 'sequence folder')} without groundtruth_rect.txt: {shown}")
     return sequences
 
 
@@ -183,14 +286,24 @@ def _got10k(path: Path) -> list[Sequence]:
         gt = folder / "groundtruth.txt"
         if not gt.is_file():
             raise DatasetError(f"{gt}: missing (listed in {listed})")
-        sequences.append(_make_sequence(folder.name, list_frames(folder), read_boxes(gt), gt))
+        sequence = _make_sequence(folder.name, list_frames(folder), read_boxes(gt), gt)
+        sequences.append(_with_attribute_file(sequence, [path / f for f in ATTRIBUTE_FOLDERS]))
     return sequences
+
+
+def _attribute_list(value: object, file: Path, name: str, kinds: tuple[type, ...] = (str,)) -> tuple[str, ...]:
+    """A sequence's attributes as a list of names (of `kinds`: pysot's attr may hold 0/1 flags as numbers);
+    a string ("SV") used to be split into the attributes S and V."""
+    if not isinstance(value, list) or not all(isinstance(a, kinds) and not isinstance(a, bool) for a in value):
+        raise DatasetError(f"{file}: sequence {name!r}: expected a list of attribute names such as "
+                           f'["SV", "OCC"], got {json.dumps(value)[:60]}')
+    return tuple(str(a) for a in value)
 
 
 def _json(file: Path) -> list[Sequence]:
     try:
-        meta = json.loads(file.read_text())
-    except (OSError, ValueError) as exc:
+        meta = json.loads(read_text(file))
+    except ValueError as exc:
         raise DatasetError(f"{file}: not a readable pysot-toolkit JSON file ({exc})") from None
     except RecursionError:  # json's decoder recurses per level: '[' * 100000 was a traceback
         raise DatasetError(f"{file}: not a pysot-toolkit JSON file (nested too deeply)") from None
@@ -201,19 +314,25 @@ def _json(file: Path) -> list[Sequence]:
         if not isinstance(entry, dict) or "img_names" not in entry or "gt_rect" not in entry:
             raise DatasetError(f"{file}: sequence {name!r} lacks img_names or gt_rect")
         frames = tuple(root / str(n) for n in entry["img_names"])
-        if frames and not frames[0].is_file():
-            raise DatasetError(f"{frames[0]}: first frame of {name} not found (paths are relative to {root})")
+        # every frame before any tracking: a later missing one used to stop the run as "cannot read image"
+        missing = next((k for k, f in enumerate(frames) if not f.is_file()), None)
+        if missing is not None:
+            which = "first frame" if missing == 0 else f"frame {missing + 1}"
+            raise DatasetError(f"{frames[missing]}: {which} of {name} not found (paths are relative to {root})")
         try:
             boxes = np.asarray([[np.nan if v is None else float(v) for v in row] for row in entry["gt_rect"]])
         except (TypeError, ValueError):
             raise DatasetError(f"{file}: sequence {name!r} has a gt_rect that is not a list of numbers") from None
         if boxes.ndim != 2 or boxes.shape[1] != 4:
             raise DatasetError(f"{file}: sequence {name!r}: gt_rect rows must be x, y, w, h")
-        attr = entry.get("attr") or []
-        if all(str(a) in ("0", "1") for a in attr):
-            names = parse_attributes(" ".join(str(a) for a in attr), f"{file} ({name})") if attr else ()
+        if len(frames) != len(boxes):
+            raise DatasetError(f"{file}: sequence {name!r}: {plural(len(frames), 'img_name')} for "
+                               f"{plural(len(boxes), 'gt_rect row')}; need one box per frame")
+        attr = _attribute_list(entry.get("attr") or [], file, str(name), (str, int))
+        if attr and all(a in ("0", "1") for a in attr):
+            names = parse_attributes(" ".join(attr), f"{file} ({name})")
         else:
-            names = tuple(str(a) for a in attr)
+            names = attr
         sequences.append(replace(_make_sequence(str(name), frames, boxes, file), attributes=names))
     return sequences
 
@@ -223,11 +342,17 @@ def _apply_attributes_json(path: Path, sequences: list[Sequence]) -> list[Sequen
     if not file.is_file():
         return sequences
     try:
-        table = json.loads(file.read_text())
-        table = {str(k): tuple(str(a) for a in v) for k, v in table.items()}
-    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
-        raise DatasetError(f"{file}: expected a JSON object {{sequence: [attribute, ...]}}") from None
+        table = json.loads(read_text(file))
+    except (ValueError, RecursionError):
+        table = None
+    if not isinstance(table, dict):
+        raise DatasetError(f"{file}: expected a JSON object {{sequence: [attribute, ...]}}")
+    table = {str(k): _attribute_list(v, file, str(k)) for k, v in table.items()}
     return [replace(s, attributes=table[s.name]) if s.name in table else s for s in sequences]
+
+
+def _has_frames(folder: Path) -> bool:
+    return (folder / "img").is_dir() or any(p.is_file() for p in image_files(folder))
 
 
 def detect_layout(path: Path) -> tuple[str, Path]:
@@ -237,15 +362,24 @@ def detect_layout(path: Path) -> tuple[str, Path]:
     if not path.is_dir():
         raise DatasetError(f"{path}: no such dataset folder or .json file")
     if (path / "data_seq").is_dir() and (path / "anno").is_dir():
-        return "official", path
+        nested = _nested_anno(path)
+        return ("nested", nested) if nested else ("official", path)
+    if path.parent.name == "anno" and path.name not in ATTRIBUTE_FOLDERS and (path.parent.parent / "data_seq").is_dir():
+        return "nested", path  # <root>/anno/UAV20L: that one of the datasets in anno/
     named_json = path / f"{path.name}.json"
     if named_json.is_file():
         return "json", named_json
-    subdirs = [p for p in path.iterdir() if p.is_dir()]
-    if any((p / "img").is_dir() and any(p.glob("groundtruth_rect*.txt")) for p in subdirs):
+    subdirs = sorted(p for p in path.iterdir() if p.is_dir())
+    if any(any(OTB_TRUTH.fullmatch(f.name) for f in p.iterdir()) and _has_frames(p) for p in subdirs):
         return "otb", path
     if any((p / "groundtruth.txt").is_file() for p in subdirs):
         return "got10k", path
+    if (path / "data_seq").is_dir():
+        raise DatasetError(f"{path}: data_seq/ but no anno/ folder (the official layout keeps each sequence's "
+                           "boxes in anno/<seq>.txt beside data_seq/)")
+    inside = [p for p in subdirs if (p / "data_seq").is_dir()]
+    if inside:
+        raise DatasetError(f"{path}: a folder of datasets; give one of: {', '.join(str(p) for p in inside)}")
     raise DatasetError(f"{path}: unknown dataset layout; expected {EXPECTED_LAYOUTS}")
 
 
@@ -253,14 +387,15 @@ def load_dataset(path: str | Path) -> Dataset:
     """Read a dataset in any of the supported layouts (see the module docstring)."""
     path = Path(path).expanduser()
     layout, target = detect_layout(path)
-    readers = {"official": _official, "otb": _otb, "got10k": _got10k, "json": _json}
+    readers = {"official": _official, "nested": _official_nested, "otb": _otb, "got10k": _got10k, "json": _json}
     try:
         sequences = readers[layout](target)
     except OSError as exc:
         raise DatasetError(f"{getattr(exc, 'filename', None) or path}: cannot read ({exc.strerror or exc})") from None
-    folder = target.parent if layout == "json" else target
+    folder = target.parent if layout == "json" else path if layout == "nested" else target
     sequences = _apply_attributes_json(folder, sequences)
     if not sequences:
         raise DatasetError(f"{path}: no sequences found ({layout} layout)")
     name = target.stem if layout == "json" else target.name
-    return Dataset(name=name, path=path, layout=layout, sequences=tuple(sequences))
+    return Dataset(name=name, path=path, layout="official" if layout == "nested" else layout,
+                   sequences=tuple(sequences))

@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..sources import read_image
-from .datasets import Dataset, DatasetError, load_dataset, read_boxes
+from .datasets import Dataset, DatasetError, load_dataset, plural, read_boxes
 from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
@@ -257,7 +257,8 @@ def read_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
             return None
         path, states = present[seq.name]
         if len(states) != len(seq):
-            raise EvalError(f"{path}: {len(states)} states, but {seq.name} has {len(seq)} ground-truth frames")
+            raise EvalError(f"{path}: {plural(len(states), 'state')}, but {seq.name} has "
+                            f"{plural(len(seq), 'ground-truth frame')}")
         out[seq.name] = states
     return out
 
@@ -386,9 +387,11 @@ class RunReport:
 
 
 def read_frame(path: Path) -> np.ndarray:
+    """A frame to track; a file that is not there says so ("cannot read image" sent people looking for a
+    damaged file)."""
     image = read_image(path)  # libjpeg's own warnings on a damaged frame stay off stderr
     if image is None:
-        raise EvalError(f"{path}: cannot read image")
+        raise EvalError(f"{path}: {'cannot read image' if Path(path).is_file() else 'not found'}")
     return image
 
 
@@ -474,7 +477,8 @@ def read_results(dataset: Dataset, folder: Path) -> dict[str, np.ndarray]:
         path = folder / f"{seq.name}.txt"
         pred = read_result(path)
         if len(pred) != len(seq):
-            raise EvalError(f"{path}: {len(pred)} boxes, but {seq.name} has {len(seq)} ground-truth frames")
+            raise EvalError(f"{path}: {plural(len(pred), 'box', 'boxes')}, but {seq.name} has "
+                            f"{plural(len(seq), 'ground-truth frame')}")
         results[seq.name] = pred
     return results
 
