@@ -60,20 +60,42 @@ def test_frames_without_leading_zeros_are_in_number_order_as_dadiff_run_reads_th
 
 
 @pytest.mark.parametrize(("lines", "expected"), [
-    (2, "2 boxes for 3 frames in {img}; need one line per frame (the labels may start at a later frame"),
-    (5, "5 boxes for 3 frames in {img}; need one line per frame (a frame is missing"),
+    (2, "David (2 boxes for 3 frames); remove the unlabelled frames or give a pysot .json whose img_names list them"),
+    (5, "David (5 boxes for 3 frames, a frame missing); restore the missing frames"),
 ])
 def test_box_and_frame_counts_must_agree(tmp_path, capsys, lines, expected):
-    """Fewer or more lines than frames used to be trimmed with a warning and scored: boxes on the wrong frames."""
-    seq = _otb(tmp_path / "OTB", "David", frames=3, lines=lines)
+    """Fewer or more lines than frames used to be trimmed with a warning and scored: boxes on the wrong frames.
+    Such a sequence is left out; only a dataset with none left is refused."""
+    root = tmp_path / "OTB"
+    _otb(root, "David", frames=3, lines=lines)
     with pytest.raises(DatasetError) as info:
-        load_dataset(tmp_path / "OTB")
-    message = str(info.value)
-    assert message.startswith(f"{seq / 'groundtruth_rect.txt'}: " + expected.format(img=seq / "img"))
-    assert "or give a pysot-toolkit .json whose img_names list the frames of each box" in message
-    _otb(tmp_path / "OTB", "Other")
-    assert main(["score", "--dataset", str(tmp_path / "OTB"), str(tmp_path)]) == 2
-    assert f"{lines} boxes for 3 frames" in _error_line(capsys)
+        load_dataset(root)
+    assert str(info.value) == (f"{root}: no sequence to score; left out 1 sequence whose boxes do not fit their "
+                               f"frames: {expected}")
+    assert main(["score", "--dataset", str(root), str(tmp_path)]) == 2
+    assert _error_line(capsys) == f"dadiff-eval: error: {info.value}"
+    _otb(root, "Basketball")
+    assert [s.name for s in load_dataset(root).sequences] == ["Basketball"]
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"dadiff-eval: warning: OTB: left out 1 sequence whose boxes do not fit their frames: {expected}"]
+
+
+def test_otb100_as_downloaded_loads_without_its_misfits(tmp_path, capsys):
+    """One bad sequence refused the whole dataset, and --sequences (applied after loading) could not leave it
+    out: OTB100 as downloaded could not be loaded at all."""
+    root = tmp_path / "OTB100"
+    _otb(root, "Basketball", frames=4)
+    _otb(root, "David", frames=7, lines=4)
+    _otb(root, "Diving", frames=5, lines=4)
+    _perfect_results(root, tmp_path / "res" / "T")
+    capsys.readouterr()
+    assert main(["score", "--dataset", str(root), "--sequences", "Basketball", "--json", str(tmp_path / "res")]) == 0
+    captured = capsys.readouterr()
+    assert list(json.loads(captured.out)) == ["T"]  # stdout stays one JSON document
+    assert captured.err.strip().splitlines() == [
+        "dadiff-eval: warning: OTB100: left out 2 sequences whose boxes do not fit their frames: David (4 boxes for "
+        "7 frames), Diving (4 boxes for 5 frames); remove the unlabelled frames or give a pysot .json whose "
+        "img_names list them"]
 
 
 def test_trailing_blank_lines_and_a_byte_order_mark_are_not_boxes(tmp_path):
@@ -95,10 +117,10 @@ def test_got10k_test_split_with_only_the_first_box_is_refused(tmp_path, capsys):
         (root / name / "groundtruth.txt").write_text("1,2,3,4\n")
     (root / "list.txt").write_text("GOT-10k_Test_000001\nGOT-10k_Test_000002\n")
     assert main(["score", "--dataset", str(root), str(tmp_path)]) == 2
-    line = _error_line(capsys)
-    assert f"{root / 'GOT-10k_Test_000001' / 'groundtruth.txt'}: only the first frame is labelled (1 box for 6 " \
-           "frames" in line
-    assert "nothing to score (GOT-10k's test split is scored by its evaluation server)" in line
+    assert _error_line(capsys) == (
+        f"dadiff-eval: error: {root}: no sequence to score; left out 2 sequences whose boxes do not fit their "
+        "frames: GOT-10k_Test_000001 (only the first of 6 frames labelled), GOT-10k_Test_000002 (only the first "
+        "of 6 frames labelled); nothing to score there (GOT-10k's test split is scored by its evaluation server)")
 
 
 # 4. OTB folders without groundtruth_rect.txt
@@ -193,16 +215,18 @@ def test_uav123_as_downloaded_with_uav20l_over_the_same_frames(tmp_path):
     assert long.sequences[0].frames[2] == root / "data_seq" / "UAV123" / "car1" / "000003.jpg"
 
 
-def test_uav123_parts_of_one_clip_are_refused_with_the_way_out(tmp_path):
-    """bird1_1, bird1_2 are frame ranges of data_seq/UAV123/bird1 that the download does not record."""
+def test_uav123_parts_of_one_clip_are_left_out_with_the_way_out(tmp_path, capsys):
+    """bird1_1, bird1_2 are frame ranges of data_seq/UAV123/bird1 that the download does not record: left out,
+    named, and the unsplit sequences load (the parts used to refuse the whole of UAV123)."""
     root = _uav123_download(tmp_path)
     (root / "anno" / "UAV123" / "car1.txt").rename(root / "anno" / "UAV123" / "car1_1.txt")
-    with pytest.raises(DatasetError) as info:
-        load_dataset(root)
-    assert str(info.value) == (
-        f"{root / 'anno' / 'UAV123' / 'car1_1.txt'}: a part of {root / 'data_seq' / 'UAV123' / 'car1'} whose frame "
-        "range is not in the download; give a pysot-toolkit UAV123.json instead (its img_names list each part's "
-        "frames, relative to the .json's folder)")
+    (root / "anno" / "UAV123" / "car1_2.txt").write_text(_boxes(2))
+    assert [s.name for s in load_dataset(root).sequences] == ["bike1"]
+    why = "a part of car1 whose frame range is not in the download"
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"dadiff-eval: warning: UAV123: left out 2 sequences whose boxes do not fit their frames: car1_1 ({why}), "
+        f"car1_2 ({why}); give a pysot-toolkit UAV123.json instead (its img_names list each part's frames, "
+        "relative to the .json's folder)"]
 
 
 def test_anno_with_several_datasets_and_no_name_match_asks_for_one(tmp_path):

@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+from dadiff.runtime.config import TUNABLE_KEYS
 from dadiff.runtime.evaluation import cli as eval_cli
 from dadiff.runtime.evaluation import evaluate
 from dadiff.runtime.evaluation.cli import main
@@ -339,7 +340,8 @@ def test_run_record_lets_the_same_settings_resume(bench, corr_model, tmp_path, c
     results = tmp_path / "r"
     assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=.3")) == 0
     record = json.loads((results / "bench" / "corr" / "run.json").read_text())
-    assert record["tracker"] == "dadiff" and record["hp"] == {"lr": 0.3} and record["preset"] is None
+    assert record["tracker"] == "dadiff" and record["hp"]["lr"] == 0.3 and "preset" not in record
+    assert set(record["hp"]) == set(TUNABLE_KEYS)  # every setting in effect, not only the keys typed
     assert record["model"]["folder"] == str(corr_model.resolve()) and len(record["model"]["search_sha256"]) == 64
     capsys.readouterr()
     copy = shutil.copytree(corr_model, tmp_path / "elsewhere" / "corr")  # the same files elsewhere: same boxes
@@ -357,8 +359,10 @@ def test_run_into_a_folder_of_other_settings_is_refused(bench, corr_model, tmp_p
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
     assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=0.05")) == 2
     line = _one_error_line(capsys)
-    assert line == (f"dadiff-eval: error: {folder} holds results of other settings (--hp lr: unset before, "
+    assert line == (f"dadiff-eval: error: {folder} holds results of other settings (--hp lr: 0.473 before, "
                     "0.05 now): give --name NEW (or another --results) for these settings; nothing tracked")
+    assert main(_run(bench, results, "--model", str(corr_model), "--preset", "NUT_L")) == 2
+    assert "(--hp window_influence: 0.401 before, 0.403 now)" in _one_error_line(capsys)
     other = write_other_model(tmp_path / "other" / "corr")
     assert main(_run(bench, results, "--model", str(other))) == 2
     line = _one_error_line(capsys)
@@ -366,6 +370,30 @@ def test_run_into_a_folder_of_other_settings_is_refused(bench, corr_model, tmp_p
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before  # nothing tracked, nothing rewritten
     assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=0.05", "--name", "corr-lr")) == 0
     assert "corr-lr: tracked 4 sequences" in capsys.readouterr().out
+
+
+def test_the_same_settings_by_another_route_resume(bench, corr_model, tmp_path, capsys):
+    """The record held --preset's name and the --hp keys typed: no --preset, then the model's default preset
+    by name, or --hp lr at the preset's own value, were refused as other settings though no box changes."""
+    results = tmp_path / "r"
+    assert main(_run(bench, results, "--model", str(corr_model))) == 0
+    capsys.readouterr()
+    for extra in (["--preset", "UAVDark70"], ["--hp", "lr=0.473"], ["--preset", "UAVDark70", "--hp", "lr=.473"]):
+        assert main(_run(bench, results, "--model", str(corr_model), *extra)) == 0, extra
+        captured = capsys.readouterr()
+        assert "tracked 0 sequences (0 frames), 4 already done" in captured.out and captured.err == ""
+
+
+def test_a_folder_with_only_a_run_record_takes_the_new_settings(bench, corr_model, tmp_path, capsys):
+    """A run that failed before its first sequence left only run.json; a corrected run with other settings
+    was refused as 'holds results of other settings' though there were none."""
+    results = tmp_path / "r"
+    folder = results / "bench" / "corr"
+    folder.mkdir(parents=True)
+    (folder / "run.json").write_text(json.dumps({"record": 1, "tracker": "dadiff", "hp": {"lr": 0.9}}))
+    assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=0.05")) == 0
+    assert "corr: tracked 4 sequences" in capsys.readouterr().out
+    assert json.loads((folder / "run.json").read_text())["hp"]["lr"] == 0.05
 
 
 def write_other_model(folder):

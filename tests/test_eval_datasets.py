@@ -117,8 +117,22 @@ def test_frame_and_box_count_mismatch_is_refused_not_trimmed(tmp_path):
     root = tmp_path / "OTB"
     _frames(root / "Car" / "img", 3)
     (root / "Car" / "groundtruth_rect.txt").write_text("1,2,3,4\n1,2,3,4\n\n")
-    with pytest.raises(DatasetError, match=r"groundtruth_rect.txt: 2 boxes for 3 frames in .*img; need one line"):
+    with pytest.raises(DatasetError, match=r"OTB: no sequence to score; left out 1 sequence whose boxes do not fit "
+                                           r"their frames: Car \(2 boxes for 3 frames\)"):
         load_dataset(root)
+
+
+def test_a_pysot_json_sequence_whose_rows_do_not_fit_is_left_out(tmp_path, capsys):
+    """The json layout refused the whole file for one sequence's img_names / gt_rect mismatch."""
+    root = tmp_path / "J"
+    _frames(root / "a", 2)
+    meta = {"a": {"img_names": ["a/0001.jpg", "a/0002.jpg"], "gt_rect": [[1, 2, 3, 4]] * 2},
+            "b": {"img_names": ["a/0001.jpg", "a/0002.jpg"], "gt_rect": [[1, 2, 3, 4]] * 3}}
+    (root / "J.json").write_text(json.dumps(meta))
+    assert [s.name for s in load_dataset(root).sequences] == ["a"]
+    assert capsys.readouterr().err.strip() == (
+        "dadiff-eval: warning: J: left out 1 sequence whose boxes do not fit their frames: b (2 img_names for "
+        f"3 gt_rect rows); give one img_name per gt_rect row in {root / 'J.json'}")
 
 
 def test_unknown_layout_names_what_was_expected(tmp_path):

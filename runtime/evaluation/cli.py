@@ -33,7 +33,7 @@ from ..errors import InputError, ModelError, OneLineParser
 from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
 from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
-from .datasets import Dataset, DatasetError, load_dataset
+from .datasets import Dataset, DatasetError, load_dataset, plural
 from .detection_tracks import LinkSettings, write_detection_benchmark
 from .detector import Detector, detect_video, write_det_txt
 from .evaluate import (
@@ -325,11 +325,6 @@ def format_table(title: str, scores: Sequence[TrackerScores], attribute: str | N
     return "\n".join(lines)
 
 
-def sequence_count(count: int) -> str:
-    """'1 sequence', '2 sequences': the tables' and the run line's counts ('OCC: 1 sequences' read wrong)."""
-    return f"{count} sequence" + ("" if count == 1 else "s")
-
-
 def _pick(item: TrackerScores, attribute: str | None):
     return item.overall if attribute is None else item.by_attribute[attribute]
 
@@ -372,11 +367,11 @@ def report(
     """Print the overall table (and per attribute), then draw the plots."""
     label = dataset.name + (f" ({' '.join(subset)})" if subset else "")
     names = attribute_names(dataset, attributes, label)  # its note before the tables, not between them
-    print(format_table(f"{label}: {sequence_count(len(dataset.sequences))}", scores))
+    print(format_table(f"{label}: {plural(len(dataset.sequences), 'sequence')}", scores))
     for attr in names:
         count = sum(attr in s.attributes for s in dataset.sequences)
         print()
-        print(format_table(f"{attr}: {sequence_count(count)}", scores, attr))
+        print(format_table(f"{attr}: {plural(count, 'sequence')}", scores, attr))
     print(NOTE)
     if plots is not None:
         written = write_plots({s.name: s.overall for s in scores}, plots, label)
@@ -439,8 +434,10 @@ def _plain(value: object) -> object:
 
 def run_record(args: argparse.Namespace, tracker: object) -> dict:
     """What decides this run's boxes, for the result folder's run.json: the tracker, the model's files (by
-    hash: a model re-exported in place is another model), --preset, the effective --hp values and the
-    NanoTrack weights. Not --threads or --sequences, which change no box."""
+    hash: a model re-exported in place is another model), every tunable setting's value in effect and the
+    NanoTrack weights. Not --threads or --sequences, which change no box; not the --preset name or the --hp
+    keys typed, which refused identical settings (no --preset then the model's default one)."""
+    from ..config import TUNABLE_KEYS
     from ..ort_cache import file_sha256
 
     record: dict = {"record": 1, "tracker": args.tracker}
@@ -449,8 +446,7 @@ def run_record(args: argparse.Namespace, tracker: object) -> dict:
         record["model"] = {"folder": str(Path(backend.folder).resolve()),
                            "template_sha256": file_sha256(backend.template_path),
                            "search_sha256": file_sha256(backend.search_path)}
-        record["preset"] = args.preset
-        record["hp"] = {key: _plain(getattr(params, key)) for key in args.hp}  # lr=.05 and lr=0.05 are one
+        record["hp"] = {key: _plain(getattr(params, key)) for key in TUNABLE_KEYS}  # lr=.05 and lr=0.05 are one
     elif args.tracker == "nano":
         backbone, head = nano_files(args.nano_dir)
         record["nano"] = {"folder": str(backbone.parent.resolve()), "backbone_sha256": file_sha256(backbone),
@@ -478,7 +474,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     done = run_tracker(tracker, name, dataset, args.results, progress=progress)
     fps = f", {done.fps:.1f} FPS" if done.fps else ""
     print(
-        f"{name}: tracked {sequence_count(len(done.ran))} ({done.frames} frames{fps}), "
+        f"{name}: tracked {plural(len(done.ran), 'sequence')} ({done.frames} frames{fps}), "
         f"{len(done.skipped)} already done, results in {done.folder}"
     )
     scores = [score_folder(dataset, done.folder, name)]
@@ -509,7 +505,7 @@ def format_differences(scores: Sequence[TrackerScores], against: str) -> str:
                               [base.sequences[n].success.mean() for n in names])
         relative = 100 * d.mean / base.overall.success if base.overall.success else float("nan")
         lines.append(f"  {item.name}: {d.mean:+.3f} ({relative:+.1f} %) [{d.low:+.3f}, {d.high:+.3f}] "
-                     f"over {sequence_count(d.sequences)}")
+                     f"over {plural(d.sequences, 'sequence')}")
     return "\n".join(lines)
 
 

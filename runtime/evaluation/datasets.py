@@ -17,7 +17,9 @@ Layouts (`load_dataset(path)` tells them apart):
 Frames are taken in dadiff-run's order (`sources.image_files`: by number, so 2.jpg before 10.jpg), and a
 sequence needs exactly one box line per frame: fewer lines (OTB labels some sequences from a later frame,
 GOT-10k's test split only the first) or more (a missing frame) would pair boxes with the wrong frames, so
-they are refused, not trimmed. Blank lines do not count.
+such a sequence is left out, not trimmed, with one warning per load naming each (UAV123's split parts such
+as bird1_1 too: the download lacks their frame ranges); only a dataset with none left is refused. Blank
+lines do not count.
 
 Any layout may carry `path/attributes.json` = `{seq: ["SV", "OCC", ...]}`. An attribute file holds names
 (comma or space separated) or 0/1 flags in a known order (`ATTRIBUTE_ORDERS`). Boxes are x, y, w, h lines
@@ -66,6 +68,15 @@ class Sequence:
 
     def __len__(self) -> int:
         return len(self.boxes)
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """A sequence whose truth does not fit its frames: `why` for the list, `fix` for the advice after it."""
+
+    name: str
+    why: str
+    fix: str
 
 
 @dataclass(frozen=True)
@@ -157,30 +168,36 @@ def _warn(message: str) -> None:
     print(f"{prog}: warning: {message}", file=sys.stderr)  # the commands' one style (eval, bench, export)
 
 
-def _make_sequence(name: str, frames: tuple[Path, ...], boxes: np.ndarray, source: Path) -> Sequence:
-    """One box line per frame, or a DatasetError saying why not and how to fix it.
+def _make_sequence(name: str, frames: tuple[Path, ...], boxes: np.ndarray) -> Sequence | LeftOut:
+    """One box line per frame, or a LeftOut saying why not and how to fix it.
 
     Trimming the longer side (what a warning used to announce) paired boxes with the wrong frames: OTB labels
-    some sequences from a later frame (David from frame 300), and a missing frame shifts every later box."""
+    some sequences from a later frame (David from frame 300), and a missing frame shifts every later box.
+    Left out, not refused: one such sequence (OTB100 has five) used to block the whole dataset."""
     if len(frames) == len(boxes):
         return Sequence(name, frames, boxes)
-    where = f" in {frames[0].parent}" if frames else ""
-    counts = f"{plural(len(boxes), 'box', 'boxes')} for {plural(len(frames), 'frame')}{where}"
+    counts = f"{plural(len(boxes), 'box', 'boxes')} for {plural(len(frames), 'frame')}"
     if len(boxes) == 1:
-        raise DatasetError(f"{source}: only the first frame is labelled ({counts}); nothing to score "
-                           "(GOT-10k's test split is scored by its evaluation server)")
-    if len(boxes) < len(frames):
-        why = "the labels may start at a later frame, as in OTB's David, or stop early"
-        fix = "remove the frames without a box"
-    else:
-        why = "a frame is missing, so every later box would be paired with the wrong frame"
-        fix = "restore the missing frames"
-    raise DatasetError(f"{source}: {counts}; need one line per frame ({why}): {fix}, or give a pysot-toolkit "
-                       ".json whose img_names list the frames of each box")
+        return LeftOut(name, f"only the first of {plural(len(frames), 'frame')} labelled",
+                       "nothing to score there (GOT-10k's test split is scored by its evaluation server)")
+    if len(boxes) < len(frames):  # the labels start at a later frame (OTB's David) or stop early
+        return LeftOut(name, counts, "remove the unlabelled frames or give a pysot .json whose img_names list them")
+    return LeftOut(name, f"{counts}, a frame missing", "restore the missing frames")
 
 
-def _with_attribute_file(sequence: Sequence, folders: list[Path], *names: str) -> Sequence:
+def _left_out_message(left: list[LeftOut], most: int = 20) -> str:
+    """'left out N sequences whose boxes do not fit their frames: David (471 boxes for 770 frames), ...; FIX'."""
+    shown = ", ".join(f"{item.name} ({item.why})" for item in left[:most])
+    if len(left) > most:
+        shown += f", and {len(left) - most} more"
+    fixes = "; ".join(dict.fromkeys(item.fix for item in left))
+    return f"left out {plural(len(left), 'sequence')} whose boxes do not fit their frames: {shown}; {fixes}"
+
+
+def _with_attribute_file(sequence: Sequence | LeftOut, folders: list[Path], *names: str) -> Sequence | LeftOut:
     """`sequence` with the attributes of the first `<folder>/<name>.txt` that exists (names in order)."""
+    if isinstance(sequence, LeftOut):
+        return sequence
     for folder in folders:
         for name in (sequence.name, *names):
             att = folder / f"{name}.txt"
@@ -189,19 +206,19 @@ def _with_attribute_file(sequence: Sequence, folders: list[Path], *names: str) -
     return sequence
 
 
-def _official(path: Path) -> list[Sequence]:
+def _official(path: Path) -> list[Sequence | LeftOut]:
     seq_root, anno = path / "data_seq", path / "anno"
     sequences = []
     for folder in sorted(p for p in seq_root.iterdir() if p.is_dir()):
         gt = anno / f"{folder.name}.txt"
         if not gt.is_file():
             raise DatasetError(f"{gt}: missing annotation for sequence {folder.name}")
-        sequence = _make_sequence(folder.name, list_frames(folder), read_boxes(gt), gt)
+        sequence = _make_sequence(folder.name, list_frames(folder), read_boxes(gt))
         sequences.append(_with_attribute_file(sequence, [path / f for f in ATTRIBUTE_FOLDERS] + [anno / "att"]))
     return sequences
 
 
-def _official_nested(anno: Path) -> list[Sequence]:
+def _official_nested(anno: Path) -> list[Sequence | LeftOut]:
     """UAV123 as downloaded: boxes in `anno/<NAME>/<seq>.txt`, frames in `data_seq/<NAME>/<seq>/` (or in the
     only folder of data_seq/: UAV20L's boxes are over UAV123's frames), attributes in `anno/<NAME>/att/`."""
     root = anno.parent.parent
@@ -217,12 +234,12 @@ def _official_nested(anno: Path) -> list[Sequence]:
         if not folder.is_dir():
             clip = SPLIT_CLIP.fullmatch(gt.stem)
             if clip and (frames_root / clip[1]).is_dir():
-                raise DatasetError(
-                    f"{gt}: a part of {frames_root / clip[1]} whose frame range is not in the download; give a "
-                    f"pysot-toolkit {anno.name}.json instead (its img_names list each part's frames, relative to "
-                    "the .json's folder)")
+                sequences.append(LeftOut(gt.stem, f"a part of {clip[1]} whose frame range is not in the download",
+                                         f"give a pysot-toolkit {anno.name}.json instead (its img_names list each "
+                                         "part's frames, relative to the .json's folder)"))
+                continue
             raise DatasetError(f"{folder}: missing (the frames of {gt})")
-        sequence = _make_sequence(gt.stem, list_frames(folder), read_boxes(gt), gt)
+        sequence = _make_sequence(gt.stem, list_frames(folder), read_boxes(gt))
         sequences.append(_with_attribute_file(sequence, [anno / f for f in ATTRIBUTE_FOLDERS]))
     return sequences
 
@@ -254,7 +271,7 @@ def _sequence_folders(path: Path) -> list[Path]:
     return folders
 
 
-def _otb(path: Path) -> list[Sequence]:
+def _otb(path: Path) -> list[Sequence | LeftOut]:
     sequences, skipped = [], []
     for folder in _sequence_folders(path):
         truths = sorted((int(m[1] or 0), m[1] or "", folder / m[0])
@@ -266,7 +283,7 @@ def _otb(path: Path) -> list[Sequence]:
         frames = list_frames(folder)
         for _, target, gt in truths:
             name = f"{folder.name}-{target}" if target else folder.name
-            sequence = _make_sequence(name, frames, read_boxes(gt), gt)
+            sequence = _make_sequence(name, frames, read_boxes(gt))
             sequences.append(_with_attribute_file(sequence, [path / f for f in ATTRIBUTE_FOLDERS], folder.name))
     if skipped:
         shown = ", ".join(skipped[:5]) + (", ..." if len(skipped) > 5 else "")
@@ -274,7 +291,7 @@ def _otb(path: Path) -> list[Sequence]:
     return sequences
 
 
-def _got10k(path: Path) -> list[Sequence]:
+def _got10k(path: Path) -> list[Sequence | LeftOut]:
     listed = path / "list.txt"
     if listed.is_file():
         names = [line.strip() for line in read_text(listed).splitlines() if line.strip()]
@@ -286,7 +303,7 @@ def _got10k(path: Path) -> list[Sequence]:
         gt = folder / "groundtruth.txt"
         if not gt.is_file():
             raise DatasetError(f"{gt}: missing (listed in {listed})")
-        sequence = _make_sequence(folder.name, list_frames(folder), read_boxes(gt), gt)
+        sequence = _make_sequence(folder.name, list_frames(folder), read_boxes(gt))
         sequences.append(_with_attribute_file(sequence, [path / f for f in ATTRIBUTE_FOLDERS]))
     return sequences
 
@@ -300,7 +317,7 @@ def _attribute_list(value: object, file: Path, name: str, kinds: tuple[type, ...
     return tuple(str(a) for a in value)
 
 
-def _json(file: Path) -> list[Sequence]:
+def _json(file: Path) -> list[Sequence | LeftOut]:
     try:
         meta = json.loads(read_text(file))
     except ValueError as exc:
@@ -326,14 +343,16 @@ def _json(file: Path) -> list[Sequence]:
         if boxes.ndim != 2 or boxes.shape[1] != 4:
             raise DatasetError(f"{file}: sequence {name!r}: gt_rect rows must be x, y, w, h")
         if len(frames) != len(boxes):
-            raise DatasetError(f"{file}: sequence {name!r}: {plural(len(frames), 'img_name')} for "
-                               f"{plural(len(boxes), 'gt_rect row')}; need one box per frame")
+            counts = f"{plural(len(frames), 'img_name')} for {plural(len(boxes), 'gt_rect row')}"
+            sequences.append(LeftOut(str(name), counts, f"give one img_name per gt_rect row in {file}"))
+            continue
         attr = _attribute_list(entry.get("attr") or [], file, str(name), (str, int))
         if attr and all(a in ("0", "1") for a in attr):
             names = parse_attributes(" ".join(attr), f"{file} ({name})")
         else:
             names = attr
-        sequences.append(replace(_make_sequence(str(name), frames, boxes, file), attributes=names))
+        sequence = _make_sequence(str(name), frames, boxes)
+        sequences.append(sequence if isinstance(sequence, LeftOut) else replace(sequence, attributes=names))
     return sequences
 
 
@@ -392,10 +411,16 @@ def load_dataset(path: str | Path) -> Dataset:
         sequences = readers[layout](target)
     except OSError as exc:
         raise DatasetError(f"{getattr(exc, 'filename', None) or path}: cannot read ({exc.strerror or exc})") from None
+    left = [s for s in sequences if isinstance(s, LeftOut)]
+    sequences = [s for s in sequences if not isinstance(s, LeftOut)]
+    name = target.stem if layout == "json" else target.name
+    if left and not sequences:
+        raise DatasetError(f"{path}: no sequence to score; {_left_out_message(left)}")
+    if left:  # one line per load; on stderr, so `score --json` stays one document
+        _warn(f"{name}: {_left_out_message(left)}")
     folder = target.parent if layout == "json" else path if layout == "nested" else target
     sequences = _apply_attributes_json(folder, sequences)
     if not sequences:
         raise DatasetError(f"{path}: no sequences found ({layout} layout)")
-    name = target.stem if layout == "json" else target.name
     return Dataset(name=name, path=path, layout="official" if layout == "nested" else layout,
                    sequences=tuple(sequences))

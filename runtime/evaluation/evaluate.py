@@ -341,14 +341,16 @@ def claim_folder(folder: Path, record: dict) -> str | None:
     """Check `record` (what this run would track with) against the one in `folder`, before tracking.
 
     Other settings: EvalError naming each setting that differs (a resumed run used to skip every finished
-    sequence and report the old setting's scores as the new one's). No folder yet, or one without results:
-    the record is written. Results without a record (older versions): a warning to print, nothing written,
-    since they may come from other settings than this run's.
+    sequence and report the old setting's scores as the new one's). No folder yet, or one without results
+    (a run that failed before its first sequence left only its record): the record is written. Results without
+    a record (older versions): a warning to print, nothing written, since they may come from other settings.
     """
     folder = Path(folder)
     path = folder / RUN_RECORD
     record = json.loads(json.dumps(record))  # as it reads back: tuples as lists, keys as strings
-    if path.is_file():
+    has_results = folder.is_dir() and any(p.suffix in (".txt", STATES) and not p.name.startswith(".")
+                                          for p in folder.iterdir())
+    if path.is_file() and has_results:
         try:
             old = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
@@ -360,7 +362,7 @@ def claim_folder(folder: Path, record: dict) -> str | None:
             raise EvalError(f"{folder} holds results of other settings ({'; '.join(differences)}): give --name NEW "
                             f"(or another --results) for these settings; nothing tracked")
         return None
-    if folder.is_dir() and any(p.suffix in (".txt", STATES) and not p.name.startswith(".") for p in folder.iterdir()):
+    if has_results:
         return (f"{folder} has results but no {RUN_RECORD} (written by an older dadiff-eval): their settings "
                 f"cannot be checked against this run's; resuming")
     _write_atomic(path, json.dumps(record, indent=1, sort_keys=True) + "\n")
