@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import fnmatch
 import math
+import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +22,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from dadiff.runtime.crop import crop_side, mean_colour, subwindow
-from dadiff.runtime.evaluation.datasets import DatasetError, read_boxes
+from dadiff.runtime.evaluation.datasets import DatasetError, list_frames, plural, read_boxes
 
 from .train_check import DAY_KINDS
 
@@ -200,6 +201,27 @@ class SceneSource:
         return night(fi, i, rng), night(fj, j, rng)
 
 
+def _warn(message: str) -> None:
+    """One line on stderr in the commands' style (`dadiff-train: warning: ...`), as the evaluation warns."""
+    prog = Path(sys.argv[0]).name if Path(sys.argv[0]).name.startswith("dadiff-") else "dadiff-train"
+    print(f"{prog}: warning: {message}", file=sys.stderr)
+
+
+def _count_mismatch(frames: int, boxes: int) -> str:
+    """Why a sequence's boxes cannot be paired with its frames by index, or "" when they can.
+
+    Trimming to the shorter side paired boxes with other frames: OTB labels David from frame 300 (471 boxes
+    for 770 frames), so frame 1 got frame 300's box; the evaluation refuses such sequences too."""
+    if frames == boxes:
+        return ""
+    counts = f"{plural(boxes, 'box', 'boxes')} for {plural(frames, 'frame')}"
+    if not frames:
+        return f"no image files, {plural(boxes, 'box', 'boxes')}"
+    if boxes == 1:
+        return f"only the first frame is labelled: {counts}"
+    return counts
+
+
 class SequenceSource:
     """Two frames of one sequence from GOT-10k (`groundtruth.txt`) or OTB/UAV123 (`groundtruth_rect.txt`,
     frames in `img/`) folders under a root; `match` keeps the folders whose name matches it (`*_day`: the day
@@ -215,22 +237,36 @@ class SequenceSource:
         self.one_night = one_night  # night_pair: one camera and fixed lights over both frames
         self._gap = 0  # frames between the last sampled pair's two frames
         self.sequences = []
+        left_out = []  # "name (why)" of each sequence whose boxes do not pair one to one with its frames
         for gt in sorted(Path(root).expanduser().rglob("groundtruth*.txt")):
             if not fnmatch.fnmatchcase(gt.parent.name, match):
                 continue
-            folder = gt.parent / "img" if (gt.parent / "img").is_dir() else gt.parent
-            frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
             try:
                 boxes = read_boxes(gt)
             except DatasetError:
                 continue
-            n = min(len(frames), len(boxes))
-            valid = [k for k in range(n) if boxes[k, 2] > 1 and boxes[k, 3] > 1 and np.isfinite(boxes[k]).all()]
+            try:
+                frames = list(list_frames(gt.parent))  # the evaluation's order: 1, 2, ..., 10 (not 1, 10, 2)
+            except DatasetError:
+                frames = []
+            why = _count_mismatch(len(frames), len(boxes))
+            if why:
+                left_out.append(f"{gt.parent.name} ({why})")
+                continue
+            valid = [k for k in range(len(boxes))
+                     if boxes[k, 2] > 1 and boxes[k, 3] > 1 and np.isfinite(boxes[k]).all()]
             if len(valid) >= 2:
                 self.sequences.append((frames, boxes, valid))
+        shown = ", ".join(left_out[:5]) + (", ..." if len(left_out) > 5 else "")
         if not self.sequences:
+            if left_out:
+                raise ValueError(f"{root}: no usable sequence: {plural(len(left_out), 'sequence')} matching "
+                                 f"{match!r} without one box per frame: {shown}")
             raise ValueError(f"{root}: no sequence folders matching {match!r} with groundtruth.txt / "
                              "groundtruth_rect.txt and frames")
+        if left_out:
+            _warn(f"{root}: left out {plural(len(left_out), 'sequence')} without one box per frame "
+                  f"(a box would be paired with another frame): {shown}")
         self.max_gap = max_gap
 
     def sample(self, rng: np.random.Generator):

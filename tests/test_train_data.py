@@ -221,3 +221,49 @@ def test_far_pairs_shrink_both_frames_so_the_target_is_a_few_pixels_wide(tmp_pat
     assert all(np.array_equal(u, v) for u, v in zip(again, plain.sample(np.random.default_rng(0)), strict=True))
     with pytest.raises(ValueError, match="far is 1.5"):
         SequenceSource(root, far=1.5)
+
+
+def _sequence(folder, frames, boxes, nan_at=()):
+    """Frames 1.png..N.png in folder/img (unpadded, OTB-style), frame k's grey level 10 k, box k at x = k;
+    `boxes` lines in groundtruth_rect.txt, NaN at the 1-based lines in `nan_at`."""
+    import cv2
+
+    (folder / "img").mkdir(parents=True)
+    for k in range(1, frames + 1):
+        cv2.imwrite(str(folder / "img" / f"{k}.png"), np.full((32, 32, 3), 10 * k, np.uint8))
+    lines = ["nan,nan,nan,nan" if k in nan_at else f"{k},2,6,6" for k in range(1, boxes + 1)]
+    (folder / "groundtruth_rect.txt").write_text("\n".join(lines) + "\n")
+
+
+def test_unpadded_frame_names_pair_each_frame_with_its_own_box_and_nan_boxes_stay_out(tmp_path):
+    """Text order (1, 10, 11, 2, ...) paired frame 10 with box 3; frames go in number order, as evaluated."""
+    _sequence(tmp_path / "Walker", frames=11, boxes=11, nan_at=(5,))
+    source = SequenceSource(tmp_path)
+    (frames, boxes, valid), = source.sequences
+    assert [p.name for p in frames] == [f"{k}.png" for k in range(1, 12)]
+    assert 4 not in valid and len(valid) == 10  # the NaN line (frame 5) is never drawn
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        fa, box_a, fb, box_b = source.sample(rng)
+        assert fa[0, 0, 0] == 10 * box_a[0] and fb[0, 0, 0] == 10 * box_b[0]  # frame k read with box k
+
+
+def test_a_sequence_with_fewer_boxes_than_frames_is_left_out_with_one_warning(tmp_path, capsys):
+    """OTB's David is labelled from frame 300: trimming paired frame 1 with frame 300's box."""
+    _sequence(tmp_path / "David", frames=12, boxes=8)
+    _sequence(tmp_path / "Test", frames=6, boxes=1)  # GOT-10k test split: only the first frame labelled
+    _sequence(tmp_path / "Good", frames=6, boxes=6)
+    source = SequenceSource(tmp_path)
+    assert [frames[0].parent.parent.name for frames, _, _ in source.sequences] == ["Good"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "warning" in err[0] and str(tmp_path) in err[0]
+    assert "David (8 boxes for 12 frames)" in err[0] and "Test (only the first frame is labelled" in err[0]
+
+
+def test_no_sequence_with_one_box_per_frame_is_an_error_naming_the_root(tmp_path):
+    _sequence(tmp_path / "David", frames=12, boxes=8)
+    _sequence(tmp_path / "Extra", frames=4, boxes=6)
+    with pytest.raises(ValueError, match="no usable sequence") as info:
+        SequenceSource(tmp_path)
+    assert str(tmp_path) in str(info.value) and "\n" not in str(info.value)
+    assert "David (8 boxes for 12 frames)" in str(info.value) and "Extra (6 boxes for 4 frames)" in str(info.value)
