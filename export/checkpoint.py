@@ -44,11 +44,18 @@ def _numpy_safe_globals() -> list[Any]:
     return allowed
 
 
+def stopped_run(path: Path) -> bool:
+    """A run's final.pt that is missing because the run stopped early (--max-steps/--max-minutes leave last.pt
+    only): "no such file" alone reads as a wrong path."""
+    return path.name == "final.pt" and not path.exists() and (path.parent / "last.pt").is_file()
+
+
 def read_checkpoint_file(path: str | Path) -> Any:
     """torch.load with weights_only=True; turns every failure into one clear line."""
     p = Path(path)
     if not p.exists():
-        raise CheckpointError(f"{p}: no such file")
+        hint = " (the run has not finished: export its last.pt, or resume it)" if stopped_run(p) else ""
+        raise CheckpointError(f"{p}: no such file{hint}")
     if p.is_dir():
         raise CheckpointError(f"{p}: is a folder, expected a checkpoint file (.pt/.pth)")
     if p.stat().st_size == 0:

@@ -134,19 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _main(args)
     except errors as e:
-        return _fail(_unfinished_run(str(e), args.checkpoint))
+        return _fail(str(e))
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; no files written", file=sys.stderr)
         return 130
-
-
-def _unfinished_run(message: str, checkpoint: str) -> str:
-    """`message`, with a hint when it is for a run's final.pt that is missing because the run stopped early
-    (--max-steps/--max-minutes leave last.pt only): "no such file" alone reads as a wrong path."""
-    path = Path(checkpoint)
-    if message == f"{path}: no such file" and path.name == "final.pt" and (path.parent / "last.pt").is_file():
-        return f"{message} (the run has not finished: export its last.pt, or resume it)"
-    return message
 
 
 def _user_errors() -> tuple[type[Exception], ...]:

@@ -24,7 +24,14 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 
-from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint_file, save_checkpoint, shape_mismatches
+from .checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    read_checkpoint_file,
+    save_checkpoint,
+    shape_mismatches,
+    stopped_run,
+)
 from .config import ModelConfig, default_config, is_lite0, with_overrides
 from .discriminator import SuccessiveDiscriminator, adversarial_loss, chain_timesteps
 from .losses import (
@@ -184,9 +191,8 @@ def load_init(init: str) -> Any:
     taken from the working folder) and when its run has only got as far as last.pt."""
     path = Path(init).expanduser()
     if not path.exists():
-        hint = ""
-        if path.name == "final.pt" and (path.parent / "last.pt").is_file():
-            hint = "; that run has not finished: start from its last.pt, or finish the run first"
+        unfinished = "; that run has not finished: start from its last.pt, or finish the run first"
+        hint = unfinished if stopped_run(path) else ""
         raise SetupError("init", f"'init' is {init!r}: no such file ({resolved(init)}); expected \"imagenet\" or "
                                  f"a dadiff checkpoint{hint}")
     try:
