@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import fnmatch
 import math
-import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +21,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from dadiff.runtime.crop import crop_side, mean_colour, subwindow
-from dadiff.runtime.evaluation.datasets import DatasetError, list_frames, plural, read_boxes
+from dadiff.runtime.evaluation.datasets import DatasetError, list_frames, plural, read_boxes, warn
 
 from .train_check import DAY_KINDS
 
@@ -201,12 +200,6 @@ class SceneSource:
         return night(fi, i, rng), night(fj, j, rng)
 
 
-def _warn(message: str) -> None:
-    """One line on stderr in the commands' style (`dadiff-train: warning: ...`), as the evaluation warns."""
-    prog = Path(sys.argv[0]).name if Path(sys.argv[0]).name.startswith("dadiff-") else "dadiff-train"
-    print(f"{prog}: warning: {message}", file=sys.stderr)
-
-
 def _count_mismatch(frames: int, boxes: int) -> str:
     """Why a sequence's boxes cannot be paired with its frames by index, or "" when they can.
 
@@ -265,8 +258,8 @@ class SequenceSource:
             raise ValueError(f"{root}: no sequence folders matching {match!r} with groundtruth.txt / "
                              "groundtruth_rect.txt and frames")
         if left_out:
-            _warn(f"{root}: left out {plural(len(left_out), 'sequence')} without one box per frame "
-                  f"(a box would be paired with another frame): {shown}")
+            warn(f"{root}: left out {plural(len(left_out), 'sequence')} without one box per frame "
+                 f"(a box would be paired with another frame): {shown}", "dadiff-train")
         self.max_gap = max_gap
 
     def sample(self, rng: np.random.Generator):

@@ -163,9 +163,11 @@ def parse_attributes(text: str, source: str) -> tuple[str, ...]:
     return tuple(parts)
 
 
-def _warn(message: str) -> None:
-    prog = Path(sys.argv[0]).name if Path(sys.argv[0]).name.startswith("dadiff-") else "dadiff-eval"
-    print(f"{prog}: warning: {message}", file=sys.stderr)  # the commands' one style (eval, bench, export)
+def warn(message: str, default_prog: str = "dadiff-eval") -> None:
+    """One `PROG: warning: ...` line on stderr, PROG the running dadiff command (the commands' one style: eval,
+    bench, export, train); `default_prog` where it runs from elsewhere (a test, the API)."""
+    prog = Path(sys.argv[0]).name if Path(sys.argv[0]).name.startswith("dadiff-") else default_prog
+    print(f"{prog}: warning: {message}", file=sys.stderr)
 
 
 def _make_sequence(name: str, frames: tuple[Path, ...], boxes: np.ndarray) -> Sequence | LeftOut:
@@ -287,7 +289,7 @@ def _otb(path: Path) -> list[Sequence | LeftOut]:
             sequences.append(_with_attribute_file(sequence, [path / f for f in ATTRIBUTE_FOLDERS], folder.name))
     if skipped:
         shown = ", ".join(skipped[:5]) + (", ..." if len(skipped) > 5 else "")
-        _warn(f"{path}: skipped {plural(len(skipped), 'sequence folder')} without groundtruth_rect.txt: {shown}")
+        warn(f"{path}: skipped {plural(len(skipped), 'sequence folder')} without groundtruth_rect.txt: {shown}")
     return sequences
 
 
@@ -417,7 +419,7 @@ def load_dataset(path: str | Path) -> Dataset:
     if left and not sequences:
         raise DatasetError(f"{path}: no sequence to score; {_left_out_message(left)}")
     if left:  # one line per load; on stderr, so `score --json` stays one document
-        _warn(f"{name}: {_left_out_message(left)}")
+        warn(f"{name}: {_left_out_message(left)}")
     folder = target.parent if layout == "json" else path if layout == "nested" else target
     sequences = _apply_attributes_json(folder, sequences)
     if not sequences:
