@@ -198,6 +198,7 @@ def test_cli_cuts_a_dataset_and_refuses_bad_input_in_one_line(tmp_path, capsys):
 
 
 def test_training_scenes_take_cutouts_only_over_the_library():
+    pytest.importorskip("torch")
     from dadiff.export.train_data import make_day_source
 
     with pytest.raises(ValueError, match="cutouts is 'people'; it needs source"):

@@ -5,10 +5,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-import torch
-from torch import nn
 
-from dadiff.export.efficientnet_lite import (
+torch = pytest.importorskip("torch")
+nn = torch.nn
+
+from dadiff.export.efficientnet_lite import (  # noqa: E402
     PIXEL_MEAN,
     PIXEL_STD,
     EfficientNetLite0,
