@@ -10,6 +10,7 @@ dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
+dadiff-eval hit-uav --out DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2]
 dadiff-eval cutouts --dataset D --out DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
@@ -53,6 +54,10 @@ from .evaluate import (
     tracker_folder,
 )
 from .fixed_camera import LabelSettings, read_video, write_fixed_camera_benchmark
+from .hit_uav import CLASSES as HIT_CLASSES
+from .hit_uav import SPLITS as HIT_SPLITS
+from .hit_uav import ChainSettings, write_hit_uav_benchmark
+from .hit_uav import default_data_dir as default_hit_uav_dir
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
 from .metrics import Scores, paired_difference
 from .night import NIGHT_STYLES
@@ -95,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,score,anatomy,box-read,generate,video,detect,pseudo-label,cutouts,data,tune}")
+                                metavar="{run,score,table,anatomy,box-read,generate,video,detect,pseudo-label,hit-uav,cutouts,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -181,6 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_video_parser(sub)
     _add_detect_parser(sub)
     _add_pseudo_label_parser(sub)
+    _add_hit_uav_parser(sub)
     _add_cutouts_parser(sub)
     _add_data_parser(sub)
     _add_tune_parser(sub)
@@ -255,6 +261,20 @@ def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
     label.add_argument("--min-height", type=float, default=24.0, help="smallest box height in px (default 24)")
     label.add_argument("--aspect", type=_aspect_range, default=(1.2, 5.0), metavar="MIN-MAX",
                        help="height over width a box must have (default 1.2-5: upright people; 0.2-5: any object)")
+
+
+def _add_hit_uav_parser(sub: argparse._SubParsersAction) -> None:
+    hit = sub.add_parser("hit-uav", help="tracking sequences from HIT-UAV's real night thermal stills: the same "
+                         "object's boxes in neighbouring stills of a flight, linked (OTB layout)")
+    hit.add_argument("--out", required=True, type=Path, help="new (or empty) output folder, outside the repository")
+    hit.add_argument("--data", type=Path, help="the HIT-UAV night folder (images/, annotations/; default: "
+                     "../shared/data/hit-uav-night beside a source checkout)")
+    hit.add_argument("--split", choices=HIT_SPLITS, default="test",
+                     help="the dataset's own split (default: test, never trained on)")
+    hit.add_argument("--max-gap", type=positive_int, default=ChainSettings.max_gap,
+                     help="most video frames between two linked stills (default: %(default)s)")
+    hit.add_argument("--min-frames", type=positive_int, default=ChainSettings.min_frames,
+                     help="fewest stills in a sequence, at least 2 (default: %(default)s)")
 
 
 def _aspect_range(text: str) -> tuple[float, float]:
@@ -690,6 +710,24 @@ def cmd_pseudo_label(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_hit_uav(args: argparse.Namespace) -> int:
+    data = args.data or default_hit_uav_dir()
+    if data is None:
+        raise InputError("no --data given and no ../shared/data/hit-uav-night beside this checkout: give the HIT-UAV "
+                         "night folder with --data DIR")
+    if args.min_frames < 2:
+        raise InputError(f"--min-frames {args.min_frames}: a sequence needs at least 2 stills")
+    check_output("--out", args.out, [data])
+    settings = ChainSettings(max_gap=args.max_gap, min_frames=args.min_frames)
+    start = time.perf_counter()
+    chains = write_hit_uav_benchmark(data, args.out, args.split, settings)
+    classes = Counter(HIT_CLASSES[c.cls] for c in chains)
+    print(f"wrote {plural(len(chains), 'sequence')} ({', '.join(f'{n} {k}' for k, n in classes.items())}; "
+          f"{sum(len(c.stills) for c in chains)} frames) from HIT-UAV's {args.split} split in {data} to {args.out} "
+          f"in {time.perf_counter() - start:.1f} s (CC BY 4.0: cite HIT-UAV, see benchmark.json)")
+    return 0
+
+
 def cmd_box_read(args: argparse.Namespace) -> int:
     from ..tracker import Tracker
     from .box_read import box_read, format_box_read
@@ -767,6 +805,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "box-read": cmd_box_read,
                 "generate": cmd_generate,
                 "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "cutouts": cmd_cutouts,
+                "hit-uav": cmd_hit_uav,
                 "data": cmd_data,
                 "tune": cmd_tune}
     try:
