@@ -490,3 +490,42 @@ def test_generate_without_scikit_image_leaves_no_folder(tmp_path, capsys, monkey
     assert main(["generate", "--out", str(out), "--sequences", "1", "--frames", "2", "--workers", "1"]) == 2
     assert "need scikit-image's photos, which are not installed here" in _one_error_line(capsys)
     assert not out.exists()
+
+
+class _Recorder:
+    """A tracker that keeps the frames it was given."""
+
+    def __init__(self):
+        self.frames = []
+
+    def init(self, frame, gt_box):
+        self.frames.append(frame)
+
+    def update(self, frame):
+        self.frames.append(frame)
+        return (0.0, 0.0, 1.0, 1.0), 1.0, "tracking"
+
+
+def test_gamma_tracker_lifts_each_frame_before_the_tracker_sees_it():
+    inner = _Recorder()
+    tracker = evaluate.GammaTracker(inner, 0.5)
+    frame = np.array([[[0, 64, 255]]], np.uint8)
+    tracker.init(frame, (0, 0, 1, 1))
+    tracker.update(frame)
+    for seen in inner.frames:  # 255 * (64 / 255) ** 0.5 = 127.75
+        assert seen.tolist() == [[[0, 128, 255]]]
+    assert frame.tolist() == [[[0, 64, 255]]]  # the caller's frame is left as it was
+
+
+def test_run_with_gamma_is_its_own_setting_in_run_json(bench, corr_model, tmp_path, capsys):
+    results = tmp_path / "r"
+    assert main(_run(bench, results, "--model", str(corr_model), "--gamma", "0.5")) == 0
+    assert "corr-gamma0.5: tracked 4 sequences" in capsys.readouterr().out
+    folder = results / "bench" / "corr-gamma0.5"
+    record = json.loads((folder / "run.json").read_text())
+    assert record["gamma"] == 0.5 and record["tracker"] == "dadiff" and "search_sha256" in record["model"]
+    assert main(_run(bench, results, "--model", str(corr_model), "--name", "corr-gamma0.5")) == 2
+    assert "(--gamma: 0.5 before, none now)" in _one_error_line(capsys)
+    with pytest.raises(SystemExit) as exit_:
+        main(_run(bench, results, "--model", str(corr_model), "--gamma", "0"))
+    assert exit_.value.code == 2 and "argument --gamma: expected a number above 0" in _one_error_line(capsys)

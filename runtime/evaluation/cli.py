@@ -1,7 +1,7 @@
 """dadiff-eval: one-pass evaluation (run, score) and the night-scene benchmark generator (generate).
 
 dadiff-eval run --model M --dataset D --results R [--attributes]
-dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R
+dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R [--gamma 0.5]
 dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
@@ -40,6 +40,7 @@ from .detector import Detector, detect_video, write_det_txt
 from .evaluate import (
     NANO_ENV,
     EvalError,
+    GammaTracker,
     OpenCVTracker,
     RuntimeTracker,
     TrackerScores,
@@ -74,6 +75,7 @@ NOTE = (
 
 
 MAX_SHIFT = 255.0  # box-read --shifts, crop px: the largest shipped search crop's side; 1e308 overflowed crop.py
+MAX_GAMMA = 10.0  # run --gamma: above it every frame is black but its brightest pixels
 MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; nan and inf used to raise ValueError / OverflowError
 
 
@@ -117,6 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--nano-dir", type=Path, metavar="DIR",
                      help="folder of nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx (default: "
                           f"${NANO_ENV}, else ../shared/weights/nanotrack/v2 beside a source checkout)")
+    run.add_argument("--gamma", type=float_in(0, MAX_GAMMA, open_low=True), metavar="G",
+                     help="apply a plain gamma curve, 255*(v/255)**G, to each frame before the tracker sees it "
+                          "(0.5 lifts the dark: a night baseline); recorded in run.json, and the default --name "
+                          "gets '-gammaG'")
     run.add_argument("--name", type=tracker_name,
                      help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO); "
                           "a folder holds one setting (its run.json records it): give a new name for another --model, "
@@ -426,6 +432,13 @@ def _check_results(results: Path, dataset: str, name: str) -> None:
 
 
 def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
+    tracker, name = _make_plain_tracker(args)
+    if args.gamma is None:
+        return tracker, name
+    return GammaTracker(tracker, args.gamma), args.name or f"{name}-gamma{args.gamma:g}"
+
+
+def _make_plain_tracker(args: argparse.Namespace) -> tuple[object, str]:
     if args.tracker != "dadiff":
         for option in ("model", "preset", "hp", "threads"):
             if getattr(args, option):
@@ -461,6 +474,9 @@ def run_record(args: argparse.Namespace, tracker: object) -> dict:
     from ..ort_cache import file_sha256
 
     record: dict = {"record": 1, "tracker": args.tracker}
+    if isinstance(tracker, GammaTracker):
+        record["gamma"] = tracker.gamma
+        tracker = tracker.tracker
     if isinstance(tracker, RuntimeTracker):
         backend, params = tracker.tracker.backend, tracker.tracker.params
         record["model"] = {"folder": str(Path(backend.folder).resolve()),
