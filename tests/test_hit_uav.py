@@ -88,6 +88,16 @@ def test_neighbouring_stills_link_each_object_into_one_sequence_with_its_true_bo
     np.testing.assert_allclose(shift, [-37, -10], atol=1.0)  # registration found the camera's move
 
 
+def test_max_move_keeps_only_links_within_a_trackers_reach(tmp_path):
+    """The camera moves 38 then 58 px: 1.7 and 2.7 sides of the car (22 px), 3.5 and 5.3 of the person (11 px)."""
+    root = _fake_hit_uav(tmp_path / "hit", _flight())
+    out = tmp_path / "out"
+    assert eval_main(["hit-uav", "--data", str(root), "--out", str(out), "--max-move", "2"]) == 0
+    dataset = load_dataset(out)
+    assert [(s.name, len(s)) for s in dataset.sequences] == [("hit0001_car", 2)]
+    assert json.loads((out / "benchmark.json").read_text())["settings"]["max_move"] == 2
+
+
 def test_a_look_alike_beside_the_target_is_refused_not_guessed(tmp_path):
     twin = (0, (PERSON[1][0] + 14, PERSON[1][1], 10.0, 12.0))  # another person 14 px to the right
     stills = _flight()

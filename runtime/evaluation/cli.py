@@ -3,6 +3,7 @@
 dadiff-eval run --model M --dataset D --results R [--attributes]
 dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R [--gamma 0.5]
 dadiff-eval score --dataset D [--json] RESULT_DIR...
+dadiff-eval table --set LABEL DATASET GLOB RESULTS [--set ...] --against TRACKER [--trackers NAME ...]
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
@@ -10,7 +11,7 @@ dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
-dadiff-eval hit-uav --out DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2]
+dadiff-eval hit-uav --out DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2] [--max-move 2]
 dadiff-eval cutouts --dataset D --out DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
@@ -66,6 +67,7 @@ from .photos import PHOTO_SPLITS
 from .plots import write_plots
 from .scene import MAX_SIDE, frame_size
 from .scenes import SOURCES, SceneError, write_benchmark
+from .table import TableSet, markdown_table, score_set
 
 PROG = "dadiff-eval"
 NOTE = (
@@ -148,6 +150,16 @@ def build_parser() -> argparse.ArgumentParser:
     score.add_argument("--against", metavar="TRACKER",
                        help="also print each tracker's success minus this one's, with a 95%% bootstrap interval "
                             "over the sequences")
+
+    table = sub.add_parser("table", help="one Markdown table: each tracker's success / precision on several sets, "
+                           "with 95%% paired bootstrap intervals against a baseline and the spread over seeds")
+    table.add_argument("--set", dest="sets", action="append", nargs=4, required=True,
+                       metavar=("LABEL", "DATASET", "GLOB", "RESULTS"),
+                       help="a column: its label, the dataset, its sequences (glob; '*' for all) and the results "
+                            "folder <results>/<dataset> holding one folder per tracker (repeat for more sets); "
+                            "folders NAME@SEED are seeds of one model")
+    table.add_argument("--against", required=True, metavar="TRACKER", help="the baseline the intervals compare with")
+    table.add_argument("--trackers", nargs="+", metavar="NAME", help="rows, in this order (default: all found)")
 
     anat = sub.add_parser("anatomy", parents=[selection],
                           help="where trackers lose frames: centred share, IoU there, by the target's grey level")
@@ -279,6 +291,9 @@ def _add_hit_uav_parser(sub: argparse._SubParsersAction) -> None:
                      help="the dataset's own split (default: test, never trained on)")
     hit.add_argument("--max-gap", type=positive_int, default=ChainSettings.max_gap,
                      help="most video frames between two linked stills (default: %(default)s)")
+    hit.add_argument("--max-move", type=float_in(0, open_low=True), metavar="SIDES",
+                     help="keep only links where the target's centre moves at most this many box sides in the image "
+                          "(within a tracker's search region; default: any move, camera jumps included)")
     hit.add_argument("--min-frames", type=positive_int, default=ChainSettings.min_frames,
                      help="fewest stills in a sequence, at least 2 (default: %(default)s)")
 
@@ -567,6 +582,13 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_table(args: argparse.Namespace) -> int:
+    sets = [TableSet(label, Path(dataset), pattern, Path(results)) for label, dataset, pattern, results in args.sets]
+    cells = [score_set(table_set, args.against) for table_set in sets]
+    print(markdown_table(sets, cells, args.against, args.trackers))
+    return 0
+
+
 def cmd_anatomy(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset).select(args.sequences)
     check_frames(dataset)
@@ -734,7 +756,7 @@ def cmd_hit_uav(args: argparse.Namespace) -> int:
     if args.min_frames < 2:
         raise InputError(f"--min-frames {args.min_frames}: a sequence needs at least 2 stills")
     check_output("--out", args.out, [data])
-    settings = ChainSettings(max_gap=args.max_gap, min_frames=args.min_frames)
+    settings = ChainSettings(max_gap=args.max_gap, min_frames=args.min_frames, max_move=args.max_move)
     start = time.perf_counter()
     chains = write_hit_uav_benchmark(data, args.out, args.split, settings)
     classes = Counter(HIT_CLASSES[c.cls] for c in chains)
@@ -818,8 +840,8 @@ def cmd_data(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "box-read": cmd_box_read,
-                "generate": cmd_generate,
+    commands = {"run": cmd_run, "score": cmd_score, "table": cmd_table, "anatomy": cmd_anatomy,
+                "box-read": cmd_box_read, "generate": cmd_generate,
                 "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "cutouts": cmd_cutouts,
                 "hit-uav": cmd_hit_uav,
                 "data": cmd_data,

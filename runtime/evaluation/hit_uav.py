@@ -55,6 +55,7 @@ class ChainSettings:
     ambiguity: float = 0.5  # ... unless a second box overlaps it by this share of that ...
     crowd: float = 1.5  # ... or another box of its class has its centre within this many box sides of it
     min_side: float = 4.0  # px: smaller boxes are left out
+    max_move: float | None = None  # box sides the target's centre may move in the image between stills (None: any)
     min_frames: int = 2  # shortest chain written
     max_frames: int = 30  # a longer chain is cut here (the rest starts another)
 
@@ -198,6 +199,12 @@ def _clear_best(box: np.ndarray, cls: int, boxes: np.ndarray, classes: np.ndarra
     return int(same[order[0]])
 
 
+def _move(before: np.ndarray, after: np.ndarray) -> float:
+    """How far a box's centre moved in the image, in box sides (the geometric mean of its sides before)."""
+    shift = (after[:2] + after[2:] / 2) - (before[:2] + before[2:] / 2)
+    return float(np.hypot(*shift) / np.sqrt(before[2] * before[3]))
+
+
 def link_pair(first: Still, second: Still, matrix: np.ndarray, settings: ChainSettings) -> dict[int, int]:
     """Box row in `first` -> box row in `second` for every object clearly seen in both, checked both ways."""
     if len(first.boxes) == 0 or len(second.boxes) == 0:
@@ -207,9 +214,10 @@ def link_pair(first: Still, second: Still, matrix: np.ndarray, settings: ChainSe
     links = {}
     for i, box in enumerate(forward):
         j = _clear_best(box, int(first.classes[i]), second.boxes, second.classes, settings)
-        if j is not None and _clear_best(backward[j], int(second.classes[j]), first.boxes, first.classes,
-                                         settings) == i:
-            links[i] = j
+        if j is None or _clear_best(backward[j], int(second.classes[j]), first.boxes, first.classes, settings) != i:
+            continue
+        if settings.max_move is None or _move(first.boxes[i], second.boxes[j]) <= settings.max_move:
+            links[i] = j  # else a jump beyond a tracker's search region, left out of a 'within reach' set
     return links
 
 
