@@ -571,3 +571,21 @@ def test_table_without_the_baseline_is_one_line_and_exit_2(bench, tmp_path, caps
     _shifted_results(bench, results, {"Shifted": 3})
     assert main(["table", "--against", "NANO", "--set", "all", str(bench), "*", str(results)]) == 2
     assert _one_error_line(capsys).startswith("dadiff-eval: error: --against NANO: no such tracker in ")
+
+
+def test_table_skip_first_scores_the_frames_after_the_init_frame(bench, tmp_path, capsys):
+    from dadiff.runtime.evaluation.metrics import success_curve
+
+    results = tmp_path / "results" / "bench"
+    _shifted_results(bench, results, {"Perfect": 0, "Shifted": 3})
+    args = ["table", "--against", "Perfect", "--set", "night", str(bench), "*_night", str(results)]
+    expected = np.mean([success_curve(_gt(bench, s)[1:], _gt(bench, s)[1:] + [3, 0, 0, 0]).mean()
+                        for s in ("seq001_night", "seq002_night")])
+    for extra, frames in (([], slice(0, None)), (["--skip-first"], slice(1, None))):
+        assert main([*args, *extra]) == 0
+        out = capsys.readouterr().out
+        shifted = [line for line in out.splitlines() if line.startswith("| Shifted |")][0]
+        if frames.start:
+            assert shifted.startswith(f"| Shifted | {expected:.3f} / ") and "after the init frame" in out
+        else:  # with the init frame, whose box is exact for every tracker, the score is higher
+            assert float(shifted.split(" | ")[1].split(" ")[0]) > expected + 0.03

@@ -3,7 +3,7 @@
 dadiff-eval run --model M --dataset D --results R [--attributes]
 dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R [--gamma 0.5]
 dadiff-eval score --dataset D [--json] RESULT_DIR...
-dadiff-eval table --set LABEL DATASET GLOB RESULTS [--set ...] --against TRACKER [--trackers NAME ...]
+dadiff-eval table --set LABEL DATASET GLOB RESULTS [--set ...] --against TRACKER [--trackers NAME ...] [--skip-first]
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
@@ -160,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "folders NAME@SEED are seeds of one model")
     table.add_argument("--against", required=True, metavar="TRACKER", help="the baseline the intervals compare with")
     table.add_argument("--trackers", nargs="+", metavar="NAME", help="rows, in this order (default: all found)")
+    table.add_argument("--skip-first", action="store_true",
+                       help="score the frames after the init frame only (its box is the truth for every tracker: "
+                            "half of a two-frame sequence such as hit-uav's)")
 
     anat = sub.add_parser("anatomy", parents=[selection],
                           help="where trackers lose frames: centred share, IoU there, by the target's grey level")
@@ -584,8 +587,9 @@ def cmd_score(args: argparse.Namespace) -> int:
 
 def cmd_table(args: argparse.Namespace) -> int:
     sets = [TableSet(label, Path(dataset), pattern, Path(results)) for label, dataset, pattern, results in args.sets]
-    cells = [score_set(table_set, args.against) for table_set in sets]
-    print(markdown_table(sets, cells, args.against, args.trackers))
+    first = 1 if args.skip_first else 0
+    cells = [score_set(table_set, args.against, first) for table_set in sets]
+    print(markdown_table(sets, cells, args.against, args.trackers, first))
     return 0
 
 

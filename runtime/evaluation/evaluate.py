@@ -503,11 +503,13 @@ def read_results(dataset: Dataset, folder: Path) -> dict[str, np.ndarray]:
     return results
 
 
-def score_folder(dataset: Dataset, folder: Path, name: str | None = None) -> TrackerScores:
-    """Score the result files in `folder` against every sequence of `dataset`."""
+def score_folder(dataset: Dataset, folder: Path, name: str | None = None, first: int = 0) -> TrackerScores:
+    """Score the result files in `folder` against every sequence of `dataset`, from frame `first` on (1: leave out
+    the init frame, whose box is the truth for every tracker and half of a two-frame sequence)."""
     folder = Path(folder)
     results = read_results(dataset, folder)
-    curves = {seq.name: SequenceCurves.from_boxes(seq.boxes, results[seq.name]) for seq in dataset.sequences}
+    curves = {seq.name: SequenceCurves.from_boxes(seq.boxes[first:], results[seq.name][first:])
+              for seq in dataset.sequences}
     by_attribute = {
         attr: summarise(curves[s.name] for s in dataset.sequences if attr in s.attributes)
         for attr in dataset.attributes()

@@ -59,12 +59,13 @@ def _spread(values: list[float]) -> float | None:
     return float(np.std(values, ddof=1)) if len(values) > 1 else None
 
 
-def score_set(table_set: TableSet, baseline: str) -> dict[str, Cell]:
-    """Every model under the set's results folder, scored on its sequences, with its interval against `baseline`."""
+def score_set(table_set: TableSet, baseline: str, first: int = 0) -> dict[str, Cell]:
+    """Every model under the set's results folder, scored on its sequences from frame `first` on, with its interval
+    against `baseline`."""
     dataset = load_dataset(table_set.dataset).select([table_set.pattern])
     models: dict[str, list[TrackerScores]] = {}
     for name, folder in result_folders([table_set.results], dataset):
-        models.setdefault(model_name(name), []).append(score_folder(dataset, folder, name))
+        models.setdefault(model_name(name), []).append(score_folder(dataset, folder, name, first))
     if baseline not in models:
         raise InputError(f"--against {baseline}: no such tracker in {table_set.results} (set {table_set.label}: "
                          f"{', '.join(models)})")
@@ -95,7 +96,7 @@ def format_cell(cell: Cell | None) -> str:
 
 
 def markdown_table(sets: Sequence[TableSet], cells: Sequence[dict[str, Cell]], baseline: str,
-                   trackers: Sequence[str] | None = None) -> str:
+                   trackers: Sequence[str] | None = None, first: int = 0) -> str:
     """Rows: trackers (`trackers` in that order, else every one found, baseline first); columns: the sets."""
     found = list(dict.fromkeys(name for per_set in cells for name in per_set))
     rows = list(trackers) if trackers else [baseline, *(n for n in found if n != baseline)]
@@ -112,5 +113,6 @@ def markdown_table(sets: Sequence[TableSet], cells: Sequence[dict[str, Cell]], b
     lines.append("")
     lines.append(f"Success (area under the success plot) / precision at 20 px; in brackets success minus {baseline}'s "
                  "with its 95 % paired bootstrap interval over the set's sequences; ± the standard deviation over "
-                 f"seeds (result folders NAME{SEED_MARK}SEED).")
+                 f"seeds (result folders NAME{SEED_MARK}SEED)"
+                 + (", over frames after the init frame." if first else "."))
     return "\n".join(lines)
