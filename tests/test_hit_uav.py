@@ -139,6 +139,7 @@ def test_a_camera_jump_without_common_ground_is_not_linked(tmp_path):
     ("{", "not JSON"),
     ('{"images": []}', "no 'annotation' list"),
     ('{"images": [], "annotation": [{"bbox": [1, 2]}]}', "annotation 0"),
+    ('{"images": [{"filename": "1_60_30_0_00001.jpg", "id": "x"}], "annotation": []}', "image 0"),
 ])
 def test_bad_annotations_get_one_line_and_exit_2(tmp_path, capsys, doc, expected):
     root = _fake_hit_uav(tmp_path / "hit", _flight())
@@ -158,3 +159,11 @@ def test_real_hit_uav_neighbours_link_into_sequences_of_one_class():
     for chain in chains:
         assert len({first[p].flight for p in chain.stills}) == 1
         assert all(first[p].classes[r] == chain.cls for p, r in zip(chain.stills, chain.boxes, strict=True))
+
+
+def test_a_damaged_still_is_one_line_naming_it_and_exit_2(tmp_path, capsys):
+    root = _fake_hit_uav(tmp_path / "hit", _flight())
+    (root / "images" / "1_60_30_0_00012.jpg").write_bytes(b"not a jpeg")
+    assert eval_main(["hit-uav", "--data", str(root), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"dadiff-eval: error: {root / 'images' / '1_60_30_0_00012.jpg'}: cannot read image"]

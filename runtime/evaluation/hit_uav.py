@@ -116,9 +116,10 @@ def read_split(root: Path, split: str, settings: ChainSettings = ChainSettings()
         match = NIGHT_NAME.fullmatch(name) if isinstance(name, str) else None
         if match is None:
             continue  # a day image (0_...) or another file
-        if "id" not in image:
-            raise SceneError(f"{path}: image {number} ({name}): no 'id'")
-        kept = rows.get(int(image["id"]), [])
+        try:
+            kept = rows.get(int(image["id"]), [])
+        except (KeyError, TypeError, ValueError):
+            raise SceneError(f"{path}: image {number} ({name}): no whole-number 'id'") from None
         stills.append(Still(name, match[1], int(match[2]),
                             np.array([r[0] for r in kept], dtype=np.float64).reshape(-1, 4),
                             np.array([r[1] for r in kept], dtype=np.int64), tuple(r[2] for r in kept)))
