@@ -490,3 +490,102 @@ def test_generate_without_scikit_image_leaves_no_folder(tmp_path, capsys, monkey
     assert main(["generate", "--out", str(out), "--sequences", "1", "--frames", "2", "--workers", "1"]) == 2
     assert "need scikit-image's photos, which are not installed here" in _one_error_line(capsys)
     assert not out.exists()
+
+
+class _Recorder:
+    """A tracker that keeps the frames it was given."""
+
+    def __init__(self):
+        self.frames = []
+
+    def init(self, frame, gt_box):
+        self.frames.append(frame)
+
+    def update(self, frame):
+        self.frames.append(frame)
+        return (0.0, 0.0, 1.0, 1.0), 1.0, "tracking"
+
+
+def test_gamma_tracker_lifts_each_frame_before_the_tracker_sees_it():
+    inner = _Recorder()
+    tracker = evaluate.GammaTracker(inner, 0.5)
+    frame = np.array([[[0, 64, 255]]], np.uint8)
+    tracker.init(frame, (0, 0, 1, 1))
+    tracker.update(frame)
+    for seen in inner.frames:  # 255 * (64 / 255) ** 0.5 = 127.75
+        assert seen.tolist() == [[[0, 128, 255]]]
+    assert frame.tolist() == [[[0, 64, 255]]]  # the caller's frame is left as it was
+
+
+def test_run_with_gamma_is_its_own_setting_in_run_json(bench, corr_model, tmp_path, capsys):
+    results = tmp_path / "r"
+    assert main(_run(bench, results, "--model", str(corr_model), "--gamma", "0.5")) == 0
+    assert "corr-gamma0.5: tracked 4 sequences" in capsys.readouterr().out
+    folder = results / "bench" / "corr-gamma0.5"
+    record = json.loads((folder / "run.json").read_text())
+    assert record["gamma"] == 0.5 and record["tracker"] == "dadiff" and "search_sha256" in record["model"]
+    assert main(_run(bench, results, "--model", str(corr_model), "--name", "corr-gamma0.5")) == 2
+    assert "(--gamma: 0.5 before, none now)" in _one_error_line(capsys)
+    with pytest.raises(SystemExit) as exit_:
+        main(_run(bench, results, "--model", str(corr_model), "--gamma", "0"))
+    assert exit_.value.code == 2 and "argument --gamma: expected a number above 0" in _one_error_line(capsys)
+
+
+def _shifted_results(bench, root, shifts):
+    """One result folder per name under `root`, each the truth moved `shift` px right after frame 0."""
+    for name, shift in shifts.items():
+        folder = root / name
+        folder.mkdir(parents=True)
+        for seq in ("seq001_day", "seq001_night", "seq002_day", "seq002_night"):
+            gt = _gt(bench, seq)
+            gt[1:, 0] += shift
+            np.savetxt(folder / f"{seq}.txt", gt, delimiter=",")
+
+
+def test_table_gives_one_markdown_row_per_tracker_with_intervals_and_seed_spread(bench, tmp_path, capsys):
+    from dadiff.runtime.evaluation.datasets import load_dataset
+    from dadiff.runtime.evaluation.evaluate import score_folder
+
+    results = tmp_path / "results" / "bench"
+    _shifted_results(bench, results, {"Perfect": 0, "Shifted": 3, "Model@1": 2, "Model@2": 6})
+    sets = ["--set", "night", str(bench), "*_night", str(results), "--set", "day", str(bench), "*_day", str(results)]
+    assert main(["table", "--against", "Perfect", *sets]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "| tracker | night (*_night) | day (*_day) |" and lines[1] == "|---|---|---|"
+    rows = {line.split(" | ")[0][2:]: line for line in lines[2:5]}
+    assert list(rows) == ["Perfect", "Model (2 seeds)", "Shifted"]
+    assert rows["Perfect"].endswith("| 0.952 / 1.000 (baseline) | 0.952 / 1.000 (baseline) |")
+    night = load_dataset(bench).select(["*_night"])
+    seeds = [score_folder(night, results / f"Model@{k}").overall.success for k in (1, 2)]
+    cell = rows["Model (2 seeds)"].split(" | ")[1]
+    assert cell.startswith(f"{np.mean(seeds):.3f} ± {np.std(seeds, ddof=1):.3f} / ")
+    difference = float(cell.split("(")[1].split(" ")[0])
+    assert difference == pytest.approx(np.mean(seeds) - 20 / 21, abs=5e-4) and difference < 0
+    assert "95 % paired bootstrap" in lines[-1]
+    assert main(["table", "--against", "Perfect", "--trackers", "Shifted", "Perfect", *sets]) == 0
+    assert [line.split(" | ")[0] for line in capsys.readouterr().out.splitlines()[2:4]] == ["| Shifted", "| Perfect"]
+
+
+def test_table_without_the_baseline_is_one_line_and_exit_2(bench, tmp_path, capsys):
+    results = tmp_path / "results" / "bench"
+    _shifted_results(bench, results, {"Shifted": 3})
+    assert main(["table", "--against", "NANO", "--set", "all", str(bench), "*", str(results)]) == 2
+    assert _one_error_line(capsys).startswith("dadiff-eval: error: --against NANO: no such tracker in ")
+
+
+def test_table_skip_first_scores_the_frames_after_the_init_frame(bench, tmp_path, capsys):
+    from dadiff.runtime.evaluation.metrics import success_curve
+
+    results = tmp_path / "results" / "bench"
+    _shifted_results(bench, results, {"Perfect": 0, "Shifted": 3})
+    args = ["table", "--against", "Perfect", "--set", "night", str(bench), "*_night", str(results)]
+    expected = np.mean([success_curve(_gt(bench, s)[1:], _gt(bench, s)[1:] + [3, 0, 0, 0]).mean()
+                        for s in ("seq001_night", "seq002_night")])
+    for extra, frames in (([], slice(0, None)), (["--skip-first"], slice(1, None))):
+        assert main([*args, *extra]) == 0
+        out = capsys.readouterr().out
+        shifted = [line for line in out.splitlines() if line.startswith("| Shifted |")][0]
+        if frames.start:
+            assert shifted.startswith(f"| Shifted | {expected:.3f} / ") and "after the init frame" in out
+        else:  # with the init frame, whose box is exact for every tracker, the score is higher
+            assert float(shifted.split(" | ")[1].split(" ")[0]) > expected + 0.03

@@ -1,8 +1,9 @@
 """dadiff-eval: one-pass evaluation (run, score) and the night-scene benchmark generator (generate).
 
 dadiff-eval run --model M --dataset D --results R [--attributes]
-dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R
+dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R [--gamma 0.5]
 dadiff-eval score --dataset D [--json] RESULT_DIR...
+dadiff-eval table --set LABEL DATASET GLOB RESULTS [--set ...] --against TRACKER [--trackers NAME ...] [--skip-first]
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
@@ -10,6 +11,7 @@ dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
+dadiff-eval hit-uav --out DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2] [--max-move 2]
 dadiff-eval cutouts --dataset D --out DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
@@ -39,6 +41,7 @@ from .detector import Detector, detect_video, write_det_txt
 from .evaluate import (
     NANO_ENV,
     EvalError,
+    GammaTracker,
     OpenCVTracker,
     RuntimeTracker,
     TrackerScores,
@@ -53,6 +56,10 @@ from .evaluate import (
     tracker_folder,
 )
 from .fixed_camera import LabelSettings, read_video, write_fixed_camera_benchmark
+from .hit_uav import CLASSES as HIT_CLASSES
+from .hit_uav import SPLITS as HIT_SPLITS
+from .hit_uav import ChainSettings, write_hit_uav_benchmark
+from .hit_uav import default_data_dir as default_hit_uav_dir
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
 from .metrics import Scores, paired_difference
 from .night import NIGHT_STYLES
@@ -60,6 +67,7 @@ from .photos import PHOTO_SPLITS
 from .plots import write_plots
 from .scene import MAX_SIDE, frame_size
 from .scenes import SOURCES, SceneError, write_benchmark
+from .table import TableSet, markdown_table, score_set
 
 PROG = "dadiff-eval"
 NOTE = (
@@ -69,6 +77,7 @@ NOTE = (
 
 
 MAX_SHIFT = 255.0  # box-read --shifts, crop px: the largest shipped search crop's side; 1e308 overflowed crop.py
+MAX_GAMMA = 10.0  # run --gamma: above it every frame is black but its brightest pixels
 MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; nan and inf used to raise ValueError / OverflowError
 
 
@@ -95,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,score,anatomy,box-read,generate,video,detect,pseudo-label,cutouts,data,tune}")
+                                metavar="{run,score,table,anatomy,box-read,generate,video,detect,pseudo-label,hit-uav,cutouts,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -112,6 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--nano-dir", type=Path, metavar="DIR",
                      help="folder of nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx (default: "
                           f"${NANO_ENV}, else ../shared/weights/nanotrack/v2 beside a source checkout)")
+    run.add_argument("--gamma", type=float_in(0, MAX_GAMMA, open_low=True), metavar="G",
+                     help="apply a plain gamma curve, 255*(v/255)**G, to each frame before the tracker sees it "
+                          "(0.5 lifts the dark: a night baseline); recorded in run.json, and the default --name "
+                          "gets '-gammaG'")
     run.add_argument("--name", type=tracker_name,
                      help="tracker name for the results folder (default: model folder name, CSRT, KCF, NANO); "
                           "a folder holds one setting (its run.json records it): give a new name for another --model, "
@@ -137,6 +150,19 @@ def build_parser() -> argparse.ArgumentParser:
     score.add_argument("--against", metavar="TRACKER",
                        help="also print each tracker's success minus this one's, with a 95%% bootstrap interval "
                             "over the sequences")
+
+    table = sub.add_parser("table", help="one Markdown table: each tracker's success / precision on several sets, "
+                           "with 95%% paired bootstrap intervals against a baseline and the spread over seeds")
+    table.add_argument("--set", dest="sets", action="append", nargs=4, required=True,
+                       metavar=("LABEL", "DATASET", "GLOB", "RESULTS"),
+                       help="a column: its label, the dataset, its sequences (glob; '*' for all) and the results "
+                            "folder <results>/<dataset> holding one folder per tracker (repeat for more sets); "
+                            "folders NAME@SEED are seeds of one model")
+    table.add_argument("--against", required=True, metavar="TRACKER", help="the baseline the intervals compare with")
+    table.add_argument("--trackers", nargs="+", metavar="NAME", help="rows, in this order (default: all found)")
+    table.add_argument("--skip-first", action="store_true",
+                       help="score the frames after the init frame only (its box is the truth for every tracker: "
+                            "half of a two-frame sequence such as hit-uav's)")
 
     anat = sub.add_parser("anatomy", parents=[selection],
                           help="where trackers lose frames: centred share, IoU there, by the target's grey level")
@@ -181,6 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_video_parser(sub)
     _add_detect_parser(sub)
     _add_pseudo_label_parser(sub)
+    _add_hit_uav_parser(sub)
     _add_cutouts_parser(sub)
     _add_data_parser(sub)
     _add_tune_parser(sub)
@@ -255,6 +282,23 @@ def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
     label.add_argument("--min-height", type=float, default=24.0, help="smallest box height in px (default 24)")
     label.add_argument("--aspect", type=_aspect_range, default=(1.2, 5.0), metavar="MIN-MAX",
                        help="height over width a box must have (default 1.2-5: upright people; 0.2-5: any object)")
+
+
+def _add_hit_uav_parser(sub: argparse._SubParsersAction) -> None:
+    hit = sub.add_parser("hit-uav", help="tracking sequences from HIT-UAV's real night thermal stills: the same "
+                         "object's boxes in neighbouring stills of a flight, linked (OTB layout)")
+    hit.add_argument("--out", required=True, type=Path, help="new (or empty) output folder, outside the repository")
+    hit.add_argument("--data", type=Path, help="the HIT-UAV night folder (images/, annotations/; default: "
+                     "../shared/data/hit-uav-night beside a source checkout)")
+    hit.add_argument("--split", choices=HIT_SPLITS, default="test",
+                     help="the dataset's own split (default: test, never trained on)")
+    hit.add_argument("--max-gap", type=positive_int, default=ChainSettings.max_gap,
+                     help="most video frames between two linked stills (default: %(default)s)")
+    hit.add_argument("--max-move", type=float_in(0, open_low=True), metavar="SIDES",
+                     help="keep only links where the target's centre moves at most this many box sides in the image "
+                          "(within a tracker's search region; default: any move, camera jumps included)")
+    hit.add_argument("--min-frames", type=positive_int, default=ChainSettings.min_frames,
+                     help="fewest stills in a sequence, at least 2 (default: %(default)s)")
 
 
 def _aspect_range(text: str) -> tuple[float, float]:
@@ -406,6 +450,13 @@ def _check_results(results: Path, dataset: str, name: str) -> None:
 
 
 def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
+    tracker, name = _make_plain_tracker(args)
+    if args.gamma is None:
+        return tracker, name
+    return GammaTracker(tracker, args.gamma), args.name or f"{name}-gamma{args.gamma:g}"
+
+
+def _make_plain_tracker(args: argparse.Namespace) -> tuple[object, str]:
     if args.tracker != "dadiff":
         for option in ("model", "preset", "hp", "threads"):
             if getattr(args, option):
@@ -441,6 +492,9 @@ def run_record(args: argparse.Namespace, tracker: object) -> dict:
     from ..ort_cache import file_sha256
 
     record: dict = {"record": 1, "tracker": args.tracker}
+    if isinstance(tracker, GammaTracker):
+        record["gamma"] = tracker.gamma
+        tracker = tracker.tracker
     if isinstance(tracker, RuntimeTracker):
         backend, params = tracker.tracker.backend, tracker.tracker.params
         record["model"] = {"folder": str(Path(backend.folder).resolve()),
@@ -528,6 +582,14 @@ def cmd_score(args: argparse.Namespace) -> int:
     report(dataset, scores, args.attributes, args.plots, args.sequences)
     if differences:
         print(differences)
+    return 0
+
+
+def cmd_table(args: argparse.Namespace) -> int:
+    sets = [TableSet(label, Path(dataset), pattern, Path(results)) for label, dataset, pattern, results in args.sets]
+    first = 1 if args.skip_first else 0
+    cells = [score_set(table_set, args.against, first) for table_set in sets]
+    print(markdown_table(sets, cells, args.against, args.trackers, first))
     return 0
 
 
@@ -690,6 +752,24 @@ def cmd_pseudo_label(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_hit_uav(args: argparse.Namespace) -> int:
+    data = args.data or default_hit_uav_dir()
+    if data is None:
+        raise InputError("no --data given and no ../shared/data/hit-uav-night beside this checkout: give the HIT-UAV "
+                         "night folder with --data DIR")
+    if args.min_frames < 2:
+        raise InputError(f"--min-frames {args.min_frames}: a sequence needs at least 2 stills")
+    check_output("--out", args.out, [data])
+    settings = ChainSettings(max_gap=args.max_gap, min_frames=args.min_frames, max_move=args.max_move)
+    start = time.perf_counter()
+    chains = write_hit_uav_benchmark(data, args.out, args.split, settings)
+    classes = Counter(HIT_CLASSES[c.cls] for c in chains)
+    print(f"wrote {plural(len(chains), 'sequence')} ({', '.join(f'{n} {k}' for k, n in classes.items())}; "
+          f"{sum(len(c.stills) for c in chains)} frames) from HIT-UAV's {args.split} split in {data} to {args.out} "
+          f"in {time.perf_counter() - start:.1f} s (CC BY 4.0: cite HIT-UAV, see benchmark.json)")
+    return 0
+
+
 def cmd_box_read(args: argparse.Namespace) -> int:
     from ..tracker import Tracker
     from .box_read import box_read, format_box_read
@@ -764,9 +844,10 @@ def cmd_data(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `dadiff-eval`; returns the exit status."""
     args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "score": cmd_score, "anatomy": cmd_anatomy, "box-read": cmd_box_read,
-                "generate": cmd_generate,
+    commands = {"run": cmd_run, "score": cmd_score, "table": cmd_table, "anatomy": cmd_anatomy,
+                "box-read": cmd_box_read, "generate": cmd_generate,
                 "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "cutouts": cmd_cutouts,
+                "hit-uav": cmd_hit_uav,
                 "data": cmd_data,
                 "tune": cmd_tune}
     try:

@@ -6,7 +6,7 @@ tracker, so that all trackers share frame 0. Beside each, `<sequence>.states` ho
 user in each frame, `score,state` (frame 0: `1,init`), so that reports can check the state against the
 truth. A run is resumable: a sequence whose result file already has one line per frame is skipped. Files are
 written whole (temporary file, then rename), so an interrupted run never leaves a truncated file behind.
-`run.json` in the folder records what produced it (tracker, model hashes, --preset, --hp, NanoTrack weights):
+`run.json` in the folder records what produced it (tracker, model hashes, --preset, --hp, NanoTrack weights, --gamma):
 a run with other settings is refused, so that results of one setting are never reported as another's.
 """
 
@@ -208,6 +208,24 @@ class OpenCVTracker:
     def _score(self) -> float:
         score = getattr(self._tracker, "getTrackingScore", None)
         return float(score()) if score is not None else 1.0
+
+
+class GammaTracker:
+    """Any tracker with a plain gamma curve on each frame first (255 * (v / 255) ** gamma per channel): the
+    simplest night enhancement, a baseline that a trained night tracker has to beat (gamma < 1 lifts the dark)."""
+
+    def __init__(self, tracker: BoxTracker, gamma: float) -> None:
+        self.tracker, self.gamma = tracker, gamma
+        self._table = np.clip(np.rint(255 * (np.arange(256) / 255) ** gamma), 0, 255).astype(np.uint8)
+
+    def brighten(self, frame: np.ndarray) -> np.ndarray:
+        return cv2.LUT(frame, self._table)
+
+    def init(self, frame: np.ndarray, gt_box: Box) -> None:
+        self.tracker.init(self.brighten(frame), gt_box)
+
+    def update(self, frame: np.ndarray) -> tuple[Box, float, str]:
+        return self.tracker.update(self.brighten(frame))
 
 
 # ----------------------------------------------------------------------------------------- result files
@@ -485,11 +503,13 @@ def read_results(dataset: Dataset, folder: Path) -> dict[str, np.ndarray]:
     return results
 
 
-def score_folder(dataset: Dataset, folder: Path, name: str | None = None) -> TrackerScores:
-    """Score the result files in `folder` against every sequence of `dataset`."""
+def score_folder(dataset: Dataset, folder: Path, name: str | None = None, first: int = 0) -> TrackerScores:
+    """Score the result files in `folder` against every sequence of `dataset`, from frame `first` on (1: leave out
+    the init frame, whose box is the truth for every tracker and half of a two-frame sequence)."""
     folder = Path(folder)
     results = read_results(dataset, folder)
-    curves = {seq.name: SequenceCurves.from_boxes(seq.boxes, results[seq.name]) for seq in dataset.sequences}
+    curves = {seq.name: SequenceCurves.from_boxes(seq.boxes[first:], results[seq.name][first:])
+              for seq in dataset.sequences}
     by_attribute = {
         attr: summarise(curves[s.name] for s in dataset.sequences if attr in s.attributes)
         for attr in dataset.attributes()
