@@ -15,6 +15,7 @@ Differences from the released tracker, all switchable through parameters:
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -166,7 +167,7 @@ class Tracker:
         overrides: Mapping[str, object] | None = None,
     ) -> Tracker:
         """Tracker on onnxruntime for a model folder (or an .onnx in it), a shipped name, or the default."""
-        if model is not None and not isinstance(model, str | Path):
+        if model is not None and not isinstance(model, str | os.PathLike):
             raise InputError(f"model must be a folder, an .onnx file or a shipped model's name, got {model!r}")
         try:
             folder = resolve(model)
