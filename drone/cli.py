@@ -12,9 +12,12 @@ service), 2 bad input (one `dadiff-run: error:` line on stderr), 130 Ctrl-C.
 from __future__ import annotations
 
 import argparse
+import errno
+import ipaddress
 import math
 import re
 import signal
+import socket
 import sys
 import threading
 from collections.abc import Sequence
@@ -66,6 +69,17 @@ def _serial_ok(text: str) -> bool:
     return device.startswith("/dev/") and len(device) > 5 or bool(re.fullmatch(r"COM\d+", device, re.IGNORECASE))
 
 
+def _bad_ipv4(host: str) -> bool:
+    """Dotted digits that are no IPv4 address (999.1.1.1): the link retried it forever."""
+    if not re.fullmatch(r"[\d.]+", host):
+        return False
+    try:
+        ipaddress.IPv4Address(host)
+    except ValueError:
+        return True
+    return False
+
+
 def mavlink_conn(text: str) -> str:
     """argparse type: a connection string pymavlink opens as a link (it opens anything else as a log file,
     so `foo:bar` used to run without any link)."""
@@ -75,11 +89,40 @@ def mavlink_conn(text: str) -> str:
     if sep and scheme in NETWORK_SCHEMES and (":" in host or "[" in host):  # pymavlink splits on every ':'
         raise argparse.ArgumentTypeError(f"pymavlink's {scheme} links take an IPv4 address or a host name, "
                                          f"not an IPv6 address, got {text!r}")
+    if sep and scheme in NETWORK_SCHEMES and _bad_ipv4(host.strip()):
+        raise argparse.ArgumentTypeError(f"{host.strip()!r} is not an IPv4 address, in {text!r}")
     ok = (sep and scheme in NETWORK_SCHEMES and _network_ok(rest)) or (
         sep and scheme in SOCKET_SCHEMES and rest.strip()) or _serial_ok(spec)
     if not ok:
         raise argparse.ArgumentTypeError(f"expected {CONN_FORMS}, got {text!r}")
     return spec
+
+
+def check_endpoint(url: str) -> None:
+    """ValueError (one line) before the link first opens: a host that does not resolve (`udpout:` to one
+    logged "open" and sent nowhere), or a `udpin:`/`tcpin:` address this machine cannot listen on, its port
+    held by another program included (a second service on one udpin port silently took the ground station's
+    traffic while the first heartbeated on). Serial ports and later reopens are left to the link's retries."""
+    scheme, sep, rest = url.partition(":")
+    if not sep or scheme not in NETWORK_SCHEMES:
+        return
+    host, _, port = rest.rpartition(":")
+    kind = socket.SOCK_STREAM if scheme.startswith("tcp") else socket.SOCK_DGRAM
+    try:
+        address = socket.getaddrinfo(host, int(port), socket.AF_INET, kind)[0][4]
+    except (socket.gaierror, UnicodeError) as exc:
+        raise ValueError(f"--mavlink {url}: cannot resolve host '{host}' ({getattr(exc, 'strerror', exc)})") from None
+    if scheme not in ("udpin", "tcpin"):
+        return
+    with socket.socket(socket.AF_INET, kind) as probe:
+        if kind == socket.SOCK_STREAM:  # as pymavlink binds: our last run's TIME_WAIT is no conflict, a listener is
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(address)
+        except OSError as exc:
+            why = ("in use by another program (another dadiff service?)" if exc.errno == errno.EADDRINUSE
+                   else exc.strerror or str(exc))
+            raise ValueError(f"--mavlink {url}: cannot listen on {host}:{port}: {why}") from None
 
 
 def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
@@ -235,14 +278,22 @@ def _error(message: object) -> int:
     return 2
 
 
-def _looks_missing(spec: str) -> bool:
-    """A video given as a path that does not exist (cameras and streams may appear later)."""
+def _path_problem(spec: str) -> str | None:
+    """Why a video given as a path cannot be one (missing, a FIFO); cameras and streams may appear later."""
+    from dadiff.runtime.sources import SourceError, source_path
+
     if spec.isdigit() or spec.startswith("/dev/") or "://" in spec:
-        return False
-    return not Path(spec).expanduser().exists()
+        return None
+    try:
+        source_path(spec)
+    except SourceError as exc:
+        return str(exc)
+    return None
 
 
 def _settings(args: argparse.Namespace, key: bytes | None) -> Any:
+    from dadiff.runtime.crop import protocol_box
+
     from .camera import CameraSettings
     from .follow import FollowConfig, Gains, Limits
     from .gimbal import GimbalConfig
@@ -268,8 +319,7 @@ def _settings(args: argparse.Namespace, key: bytes | None) -> Any:
         )
     init = getattr(args, "init", None)
     if init is not None:
-        x, y, w, h = init
-        init = (x + 0.5, y + 0.5, w, h)  # the convention of dadiff-run --init (the released toolkit's)
+        init = protocol_box(init)  # the convention of dadiff-run --init (the released toolkit's)
     return ServiceSettings(
         link=LinkSettings(
             args.mavlink, args.dialect, args.component, args.sysid, key, silence_timeout=args.link_timeout
@@ -297,14 +347,21 @@ def run_mavlink(args: argparse.Namespace) -> int:
     video = getattr(args, "video", None)
     if not video:
         return _error("--mavlink needs --video (the camera: 0, /dev/video0, rtsp://...)")
-    if _looks_missing(video):
-        return _error(f"no such file or folder: '{video}'")
+    if (problem := _path_problem(video)) is not None:
+        return _error(problem)
+    from dadiff.runtime.errors import os_error_line
     from dadiff.runtime.outputs import OutputError, check_distinct
 
     try:  # before the log file is opened: it appends to (or rotates away) whatever it names
         check_distinct(video, {"--output": getattr(args, "output", None),
                                "--save-video": getattr(args, "save_video", None), "--log-file": args.log_file})
     except OutputError as exc:
+        return _error(exc)
+    except OSError as exc:  # an input the user may not read (a chmod 700 image folder)
+        return _error(os_error_line(exc))
+    try:
+        check_endpoint(args.mavlink)
+    except ValueError as exc:
         return _error(exc)
     try:
         handlers = log_handlers(args.log_file, args.log_max_bytes, args.log_backups)

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.user_files import SETTINGS_LIMIT, read_user_text
+
 
 class ConfigError(Exception):
     """A config file problem (one line)."""
@@ -65,8 +67,7 @@ def _convert(action: argparse.Action, key: str, value: Any) -> Any:
 def config_defaults(parser: argparse.ArgumentParser, path: Path) -> dict[str, Any]:
     """{dest: value} for the keys of a TOML file, checked against `parser`'s options."""
     try:
-        with path.open("rb") as f:
-            table = tomllib.load(f)
+        table = tomllib.loads(read_user_text(path, SETTINGS_LIMIT, encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except tomllib.TOMLDecodeError as exc:

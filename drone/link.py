@@ -184,6 +184,10 @@ class Link:
             self._delay = min(self._delay * 2, s.retry_max)
             return
         conn.robust_parsing = conn.mav.robust_parsing = True
+        if isinstance(conn, mavutil.mavudp) and conn.udp_server:
+            # pymavlink binds with SO_REUSEADDR; cleared once bound, a second program's bind to this port fails
+            # instead of silently taking the ground station's traffic (Linux checks the flag at each bind)
+            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
         if s.signing_key is not None:
             conn.setup_signing(
                 s.signing_key, sign_outgoing=True, allow_unsigned_callback=self.policy, link_id=SIGNING_LINK_ID

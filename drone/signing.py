@@ -19,6 +19,8 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.user_files import SETTINGS_LIMIT, read_user_bytes
+
 log = logging.getLogger(__name__)
 
 KEY_BYTES = 32
@@ -47,7 +49,7 @@ def key_from_bytes(data: bytes) -> bytes:
 def load_key(path: Path) -> bytes:
     """Read the signing key; warns when the file is readable by group or others."""
     try:
-        data = path.read_bytes()
+        data = read_user_bytes(path, SETTINGS_LIMIT)
         mode = path.stat().st_mode
     except OSError as exc:
         raise SigningKeyError(f"{path}: cannot read signing key ({exc.strerror or exc})") from None

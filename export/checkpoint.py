@@ -8,6 +8,7 @@ Every failure is a CheckpointError whose message is one line naming the file and
 from __future__ import annotations
 
 import pickle
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -61,7 +62,9 @@ def read_checkpoint_file(path: str | Path) -> Any:
     if p.stat().st_size == 0:
         raise CheckpointError(f"{p}: empty file")
     try:
-        with torch.serialization.safe_globals(_numpy_safe_globals()):
+        with torch.serialization.safe_globals(_numpy_safe_globals()), warnings.catch_warnings():
+            # torch warns of a pickle protocol it may not support: two lines before the refusal or a clean load
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
             return torch.load(p, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:
         first = str(e).strip().splitlines()

@@ -24,6 +24,8 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 
+from dadiff.runtime.errors import os_error_line
+
 from .checkpoint import (
     CheckpointError,
     load_checkpoint,
@@ -645,6 +647,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except (ValueError, CheckpointError) as e:
         print(f"dadiff-train: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # `out` on a read-only filesystem, a full disk, a data folder the user may not read
+        print(f"dadiff-train: error: {os_error_line(e)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("dadiff-train: interrupted; resume with the same command", file=sys.stderr)

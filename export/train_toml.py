@@ -12,6 +12,8 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.user_files import SETTINGS_LIMIT, read_user_text
+
 TABLES = ("train", "loss", "data", "output")  # tables whose keys count as top-level keys
 EXTENDS = "extends"
 
@@ -19,8 +21,7 @@ EXTENDS = "extends"
 def read_flat_toml(path: str | Path) -> dict[str, Any]:
     """The file's keys with the tables above flattened; ValueError naming the file when it cannot be read."""
     try:
-        with open(path, "rb") as f:
-            raw = tomllib.load(f)
+        raw = tomllib.loads(read_user_text(path, SETTINGS_LIMIT, encoding="utf-8"))
     except FileNotFoundError:
         raise ValueError(f"{path}: no such config file") from None
     except tomllib.TOMLDecodeError as e:

@@ -7,7 +7,13 @@ a machine without onnxruntime, say) can import its modules without pulling onnxr
 from __future__ import annotations
 
 import importlib
+import os
 from typing import Any
+
+# Before onnxruntime loads: its telemetry (1.32) stores a device id under $HOME and, where the home is not
+# writable (the service's user), printed "Failed to persist telemetry device ID" on every run, --help too.
+# The user's own setting wins.
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 
 _EXPORTS = {
     "Backend": ".backend",

@@ -43,7 +43,7 @@ from .bench import (
 )
 from .cli import hp_arg
 from .cpu import cpu_flags
-from .errors import InputError, ModelError, OneLineParser
+from .errors import InputError, ModelError, OneLineParser, os_error_line
 from .evaluation.datasets import Dataset, DatasetError
 from .evaluation.evaluate import (
     NANO_ENV,
@@ -434,7 +434,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         report = run(args)
     except (BenchError, ModelError, InputError, OSError, SceneError, DatasetError, EvalError,
             InstructionCountError) as exc:
-        print(f"dadiff-bench: error: {exc}", file=sys.stderr)  # SceneError: e.g. scikit-image missing
+        line = os_error_line(exc) if isinstance(exc, OSError) else exc
+        print(f"dadiff-bench: error: {line}", file=sys.stderr)  # SceneError: e.g. scikit-image missing
         return 2
     except KeyboardInterrupt:
         print("dadiff-bench: interrupted", file=sys.stderr)

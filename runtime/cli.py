@@ -21,7 +21,8 @@ from tqdm import tqdm
 from .argtypes import non_negative_int, positive_int
 from .config import TUNABLE_KEYS
 from .cpu import int8_warning
-from .errors import InputError, ModelError
+from .crop import protocol_box
+from .errors import InputError, ModelError, os_error_line
 from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
 from .runstats import RunStats
 from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
@@ -203,8 +204,7 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
         first = next(frames, None)
         if first is None:
             raise SourceError(f"cannot read a frame from {source.kind} '{args.video}'")
-        x, y, w, h = box
-        init_box = (x + 0.5, y + 0.5, w, h)  # spec 8.5: the released toolkit's init convention
+        init_box = protocol_box(box)  # spec 8.5: the released toolkit's init convention
         tracker.init(first.image, init_box)
         sinks = _open_sinks(args, source.fps)
         _emit(sinks, first, Record(init_box, 1.0, "init"))
@@ -326,7 +326,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
         except OSError as exc:
-            print(f"{PROG}: error: {exc.filename or args.demo_out}: {exc.strerror or exc}", file=sys.stderr)
+            print(f"{PROG}: error: {os_error_line(exc, args.demo_out)}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
             print(f"{PROG}: interrupted", file=sys.stderr)
@@ -341,6 +341,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             interrupted = _track(args, stats)
     except (ModelError, InputError, SourceError, OutputError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # an input the user may not read (a chmod 700 image folder)
+        print(f"{PROG}: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)

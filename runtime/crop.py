@@ -14,6 +14,7 @@ the outermost rows).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -78,3 +79,11 @@ def _remap_subwindow(
     return cv2.remap(
         frame, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=border
     )
+
+
+def protocol_box(box: Sequence[float]) -> tuple[float, float, float, float]:
+    """The box `dadiff-run --init`, the service's init and evaluation pass to `Tracker.init` for a box (x, y, w,
+    h) as datasets and users give it: (x + 0.5, y + 0.5, w, h), the released test script's init (its centre x +
+    w/2, as `init` takes the centre at x + (w - 1)/2)."""
+    x, y, w, h = (float(v) for v in box)
+    return (x + 0.5, y + 0.5, w, h)

@@ -6,10 +6,11 @@ import argparse
 from typing import NoReturn
 
 
-class ModelError(Exception):
+class ModelError(ValueError):
     """A model folder or file is missing, unreadable, or not a valid dadiff model.
 
-    The message is one line naming the file and, where it applies, the metadata key.
+    The message is one line naming the file and, where it applies, the metadata key. A ValueError, as
+    InputError: one `except ValueError` catches every problem a caller can fix.
     """
 
 
@@ -28,3 +29,11 @@ class OneLineParser(argparse.ArgumentParser):
         top, _, sub = self.prog.partition(" ")  # "dadiff-eval run": the command, then its sub-command
         where = f"{sub}: " if sub else ""
         self.exit(2, f"{top}: error: {where}{message} (see {self.prog} --help)\n")
+
+
+def os_error_line(exc: OSError, fallback: object = None) -> str:
+    """`<file>: <why>` for an OSError that reached a command's entry point: a folder the user may not read, a
+    read-only filesystem, a FIFO given as a config. Every command reports these alike, in one line."""
+    where = exc.filename or fallback
+    why = exc.strerror or str(exc) or type(exc).__name__
+    return f"{where}: {why}" if where else why

@@ -21,6 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .user_files import kind_of, read_user_text
+
 IMAGE_EXTS = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm"}
 GROUNDTRUTH_FILES = ("groundtruth_rect.txt", "groundtruth.txt")
 FILE_FAILURES = 25
@@ -255,7 +257,7 @@ class FolderSource:
     @staticmethod
     def _first_box(path: Path) -> tuple[float, float, float, float]:
         try:
-            lines = [line for line in path.read_text(encoding="utf-8-sig").splitlines() if line.strip()]
+            lines = [line for line in read_user_text(path).splitlines() if line.strip()]
         except (OSError, UnicodeDecodeError) as exc:
             raise SourceError(f"{path}: cannot read ({exc})") from None
         if not lines:
@@ -287,15 +289,23 @@ class FolderSource:
         pass
 
 
+def source_path(spec: str) -> Path:
+    """The video file or image folder that a source spec which is no camera or stream names; SourceError when
+    it is missing or neither (a FIFO with no writer held FFmpeg's probe forever; "no such file" was wrong)."""
+    path = Path(spec).expanduser()
+    if path.is_dir() or path.is_file():
+        return path
+    if path.exists():
+        raise SourceError(f"'{spec}': {kind_of(path)}, not a video file or image folder (a camera is /dev/video* "
+                          "or its index, a stream its URL)")
+    raise SourceError(f"no such file or folder: '{spec}'")
+
+
 def open_source(spec: str) -> VideoSource | FolderSource:
     """Camera index ('0') or device (/dev/video0), stream URL (scheme://...), image folder, or video file."""
     if spec.isdigit() or spec.startswith("/dev/"):
         return VideoSource(spec, "camera")
     if "://" in spec:
         return VideoSource(spec, "stream")
-    path = Path(spec).expanduser()
-    if path.is_dir():
-        return FolderSource(path)
-    if path.is_file():
-        return VideoSource(str(path), "file")
-    raise SourceError(f"no such file or folder: '{spec}'")
+    path = source_path(spec)
+    return FolderSource(path) if path.is_dir() else VideoSource(str(path), "file")

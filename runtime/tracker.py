@@ -15,6 +15,7 @@ Differences from the released tracker, all switchable through parameters:
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -153,6 +154,7 @@ class Tracker:
         self._size = (0.0, 0.0)
         self._start = (1.0, 1.0)
         self._fill: tuple[float, ...] = ()
+        self._frame_size: tuple[int, ...] = ()
 
     @classmethod
     def load(
@@ -165,6 +167,8 @@ class Tracker:
         overrides: Mapping[str, object] | None = None,
     ) -> Tracker:
         """Tracker on onnxruntime for a model folder (or an .onnx in it), a shipped name, or the default."""
+        if model is not None and not isinstance(model, str | os.PathLike):
+            raise InputError(f"model must be a folder, an .onnx file or a shipped model's name, got {model!r}")
         try:
             folder = resolve(model)
         except ModelNotFoundError as exc:
@@ -197,6 +201,7 @@ class Tracker:
         self._size = (w, h)
         self._start = (max(w, self.geometry.min_size), max(h, self.geometry.min_size))  # as the first clip makes it
         self._fill = mean_colour(image)
+        self._frame_size = image.shape[:2]
         z = self._crop(image, self.geometry.exemplar_size, self._context_side())
         self._feeds = self.backend.template(z)
         self._monitor = LostMonitor(self.params)
@@ -209,6 +214,10 @@ class Tracker:
             raise InputError("Tracker.update() called before init()")
         t0 = time.perf_counter()
         image = as_image(frame)
+        if image.shape[:2] != self._frame_size:  # the box is in the first frame's pixels: it means nothing here
+            (h, w), (h0, w0) = image.shape[:2], self._frame_size
+            raise InputError(f"frame is {w}×{h} but tracking started on a {w0}×{h0} frame; init() again to "
+                             "track at another size")
         g, p = self.geometry, self.params
         if self._motion is not None and (moved := self._motion.jolt(image)) is not None:
             self._centre = (self._centre[0] + moved[0], self._centre[1] + moved[1])  # where the jolt took it

@@ -1,9 +1,9 @@
 """Child process of the fault battery: runs command-line cases in-process, one after another.
 
-`python fault_driver.py CASES.json RESULTS.jsonl`: each case is {"module", "argv", "limit"}; each result
-line holds the exit code, the case's own stderr (file descriptor 2, so C libraries' output counts too),
-whether an exception escaped `main` (a traceback) and whether it ran past its limit (a hang). A crash of
-the whole child shows as missing result lines.
+`python fault_driver.py CASES.json RESULTS.jsonl`: each case is {"module", "argv", "limit"}, optionally "env"
+(variables set for that case only); each result line holds the exit code, the case's own stderr (file
+descriptor 2, so C libraries' output counts too), whether an exception escaped `main` (a traceback) and
+whether it ran past its limit (a hang). A crash of the whole child shows as missing result lines.
 """
 
 from __future__ import annotations
@@ -41,6 +41,19 @@ def _call(module: str, argv: list[str]) -> tuple[int | None, str | None]:
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
+    saved_env = {key: os.environ.get(key) for key in case.get("env", {})}
+    os.environ.update(case.get("env", {}))
+    try:
+        return _run_case(case)
+    finally:
+        for key, value in saved_env.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _run_case(case: dict[str, Any]) -> dict[str, Any]:
     with tempfile.TemporaryFile() as err, tempfile.TemporaryFile() as out:
         sys.stdout.flush()
         sys.stderr.flush()

@@ -5,6 +5,8 @@
 2. Files: corrupted videos, frames, model files, checkpoints and configs against every command, each in a
    child process under a time limit: no traceback, no hang, one `<command>: error:` line and exit 2 (or
    exit 0 where a damaged video still decodes).
+2b. A new user's faults (issue 55): FIFOs and devices where a file belongs, damaged NanoTrack weights,
+   MAVLink addresses that cannot work, inputs the user may not read; the same verdicts.
 3. Soak: the service over >= 10 000 frames while the camera and the link drop and come back every ~1 s:
    no row lost, flat memory, reconnect times measured.
 
@@ -22,7 +24,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -345,13 +347,22 @@ def _pseudo_label_cases(root: Path, rng: random.Random, add: Any) -> None:
             "--detector", str(bad), "--out", str(root / f"det_out{i}.txt")], strict=False)
 
 
-def _run_driver(cases: list[dict[str, Any]], root: Path, timeout: float) -> list[dict[str, Any]]:
+def _run_driver(cases: list[dict[str, Any]], root: Path, timeout: float, prefix: Sequence[str] = (),
+                memory: int | None = None) -> list[dict[str, Any]]:
+    """Run `cases` in one child (started through `prefix`, e.g. setpriv), its address space capped at `memory`
+    bytes when given (an unbounded read then fails fast instead of filling the machine)."""
+    import resource
     import subprocess
+
+    def cap() -> None:
+        if memory is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
 
     (root / "cases.json").write_text(json.dumps(cases))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, str(HERE / "fault_driver.py"), str(root / "cases.json"),
-                           str(root / "results.jsonl")], capture_output=True, text=True, timeout=timeout, env=env)
+    proc = subprocess.run([*prefix, sys.executable, str(HERE / "fault_driver.py"), str(root / "cases.json"),
+                           str(root / "results.jsonl")], capture_output=True, text=True, timeout=timeout, env=env,
+                          preexec_fn=cap)
     results = [json.loads(line) for line in (root / "results.jsonl").read_text().splitlines()]
     assert proc.returncode == 0 and len(results) == len(cases), (proc.returncode, proc.stderr[-2000:])
     return results
@@ -495,6 +506,122 @@ def test_damaged_files_against_the_torch_commands(tmp_path) -> None:
     FIGURES.setdefault("files", {}).update(_judge(cases, results))
     FIGURES["files_torch_seconds"] = round(time.monotonic() - started, 1)
     assert not any((tmp_path / f"run{i}").exists() for i in range(N_TRAIN_CONFIGS))  # no training started
+
+
+# ------------------------------------------------------------------- 2b. what a new user runs into (issue 55)
+
+MEMORY_CAP = 4 << 30  # an unbounded read of /dev/zero then ends in MemoryError, not in the machine's OOM killer
+
+
+def _new_user_cases(root: Path, held_port: int) -> list[dict[str, Any]]:
+    """FIFOs and devices where a file belongs, damaged NanoTrack weights, MAVLink addresses that cannot work."""
+    from dadiff.runtime.evaluation.evaluate import NANO_FILES
+    from runtime_models import write_corr_model
+
+    model = write_corr_model(root / "model")
+    video = root / "base.mp4"
+    _video(video, "mp4v")
+    fifo = root / "fifo"
+    os.mkfifo(fifo)
+    dataset = root / "fifo-bench"
+    _sequence(dataset / "seq001", _frames(8))
+    (dataset / "seq001" / "groundtruth_rect.txt").unlink()
+    os.mkfifo(dataset / "seq001" / "groundtruth_rect.txt")
+    good = root / "bench"
+    _sequence(good / "seq001", _frames(8))
+    nano = root / "nano"
+    nano.mkdir()
+    for name in NANO_FILES:
+        (nano / name).write_bytes(random.Random(55).randbytes(4000))
+    cases: list[dict[str, Any]] = []
+
+    def add(kind: str, module: str, argv: list[str], env: dict[str, str] | None = None) -> None:
+        cases.append({"id": f"{kind}-{len(cases)}", "kind": kind, "module": module, "argv": argv, "strict": True,
+                      "limit": 20, "env": env or {}})
+
+    run, ev, bench = "dadiff.runtime.cli", "dadiff.runtime.evaluation.cli", "dadiff.runtime.bench_cli"
+    track = ["--init", BOX, "--model", str(model), "--max-frames", "3"]
+    service = ["--video", str(video), *track, "--mavlink"]
+    add("fifo", run, ["--config", str(fifo)])
+    add("fifo", run, ["--video", str(fifo), *track])
+    add("fifo", run, ["--video", str(fifo), *track, "--mavlink", f"udpin:127.0.0.1:{free_port()}"])
+    add("fifo", run, [*service, f"udpin:127.0.0.1:{free_port()}", "--signing-key", str(fifo)])
+    add("fifo", ev, ["run", "--dataset", str(dataset), "--results", str(root / "fres"), "--model", str(model),
+                     "--no-progress", "--no-plots"])
+    add("fifo", "dadiff.export.train_cli", ["--config", str(fifo)])
+    add("device", run, ["--config", "/dev/zero"])
+    add("device", run, [*service, f"udpin:127.0.0.1:{free_port()}", "--signing-key", "/dev/zero"])
+    add("device", "dadiff.export.train_cli", ["--config", "/dev/zero"])
+    add("nano", ev, ["run", "--dataset", str(good), "--results", str(root / "nres"), "--tracker", "nano",
+                     "--nano-dir", str(nano), "--no-progress", "--no-plots"])
+    timing = [str(model), "--clip", "4", "--frames", "2", "--warmup", "0", "--json"]
+    add("nano", bench, [*timing, "--nano-dir", str(nano)])
+    add("nano", bench, timing, env={"DADIFF_NANO_DIR": str(nano)})
+    add("mavlink", run, [*service, "udpin:999.1.1.1:14550"])
+    add("mavlink", run, [*service, "udpout:no-such-host.invalid:14550"])
+    add("mavlink", run, [*service, f"udpin:127.0.0.1:{held_port}"])  # the port another service holds
+    add("mavlink", run, [*service, f"udpin:0.0.0.0:{held_port}"])
+    return cases
+
+
+def test_new_user_faults_are_one_line_without_hang(tmp_path) -> None:
+    pytest.importorskip("torch")
+    held = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    held.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as pymavlink binds udpin: sharing allowed
+    held.bind(("127.0.0.1", 0))
+    try:
+        cases = _new_user_cases(tmp_path, held.getsockname()[1])
+        results = _run_driver(cases, tmp_path, timeout=300, memory=MEMORY_CAP)
+    finally:
+        held.close()
+    FIGURES["new_user"] = _judge(cases, results)
+    assert not (tmp_path / "nres").exists()  # refused before the run's record was written
+
+
+def _without_root_reads() -> list[str] | None:
+    """How to start a child that file permissions bind: as is for a user, without root's read-anything
+    capabilities for root (setpriv); None where neither works."""
+    import shutil
+    import subprocess
+
+    if os.geteuid() != 0:
+        return []
+    prefix = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search"]
+    if shutil.which("setpriv") and subprocess.run([*prefix, "true"], capture_output=True).returncode == 0:
+        return prefix
+    return None
+
+
+def test_inputs_the_user_may_not_read_are_one_line(tmp_path) -> None:
+    prefix = _without_root_reads()
+    if prefix is None:
+        pytest.skip("root without setpriv: permissions do not bind here")
+    from runtime_models import write_corr_model
+
+    model = write_corr_model(tmp_path / "model")
+    seq = _sequence(tmp_path / "locked", _frames(6))
+    config = tmp_path / "locked.toml"
+    config.write_text(f'video = "{seq}"\n')
+    add = {"strict": True, "limit": 30}
+    run = "dadiff.runtime.cli"
+    cases = [
+        {"id": "folder-0", "kind": "unreadable", "module": run, "argv": ["--video", str(seq), "--model", str(model)]},
+        {"id": "folder-1", "kind": "unreadable", "module": run, "argv": [
+            "--video", str(seq), "--model", str(model), "--mavlink", f"udpin:127.0.0.1:{free_port()}"]},
+        {"id": "folder-2", "kind": "unreadable", "module": "dadiff.runtime.evaluation.cli", "argv": [
+            "run", "--dataset", str(tmp_path / "locked"), "--results", str(tmp_path / "res"), "--model", str(model),
+            "--no-progress", "--no-plots"]},
+        {"id": "config-3", "kind": "unreadable", "module": run, "argv": ["--config", str(config)]},
+    ]
+    cases = [{**case, **add} for case in cases]
+    (seq / "img").chmod(0o000)  # as a chmod 700 folder of another user
+    config.chmod(0o000)
+    try:
+        results = _run_driver(cases, tmp_path, timeout=120, prefix=prefix)
+    finally:
+        (seq / "img").chmod(0o755)
+        config.chmod(0o644)
+    FIGURES["unreadable"] = _judge(cases, results)
 
 
 # ---------------------------------------------------------------------------------------------- 3. soak

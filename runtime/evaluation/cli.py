@@ -31,7 +31,7 @@ from pathlib import Path
 
 from ..argtypes import float_in, non_negative_int, positive_int
 from ..cli import hp_arg
-from ..errors import InputError, ModelError, OneLineParser
+from ..errors import InputError, ModelError, OneLineParser, os_error_line
 from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
 from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
@@ -857,8 +857,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        print(f"{PROG}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(f"{PROG}: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; finished sequences are kept, run again to resume", file=sys.stderr)

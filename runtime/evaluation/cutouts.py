@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..user_files import read_user_text
 from .datasets import Dataset
 from .evaluate import read_frame
 from .library import LibraryError, LibraryImage, split_of
@@ -141,15 +142,17 @@ def cutout_images(folder: str | Path, split: str) -> list[LibraryImage]:
     folder = Path(folder).expanduser()
     index = folder / "index.json"
     try:
-        meta = json.loads(index.read_text())
+        meta = json.loads(read_user_text(index, encoding="utf-8"))
         images = [
             LibraryImage(path=folder / item["file"], package=f"cutouts:{folder.name}", source=item["file"],
                          role="target", split=item["split"], licence=meta["licence"],
                          width=int(item["width"]), height=int(item["height"]))
             for item in meta["cutouts"]
         ]
-    except OSError:
+    except FileNotFoundError:
         raise LibraryError(f"{index}: no cut-out index here (make one with dadiff-eval cutouts)") from None
+    except OSError as exc:
+        raise LibraryError(f"{index}: cannot read ({exc.strerror or exc})") from None
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise LibraryError(f"{index}: not a valid cut-out index ({exc})") from None
     chosen = [i for i in images if i.split == split]

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..sources import image_dir, image_files
+from ..user_files import read_user_text
 
 NUT_LR_ATTRIBUTES = ("ARC", "BC", "CM", "FM", "OCC", "SV", "SOB", "VC", "IV", "LAI")
 UAV123_ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SOB")  # SOB: similar object
@@ -112,7 +113,7 @@ def read_text(path: Path) -> str:
 
     utf-8-sig: a byte-order mark (Notepad's) was kept as part of the first number and refused the file."""
     try:
-        return Path(path).read_text(encoding="utf-8-sig")
+        return read_user_text(path)
     except OSError as exc:
         raise DatasetError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:

@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..user_files import read_user_text
 from .fixed_camera import Track, check_new_folder, read_video, video_info, write_tracks
 from .metrics import iou_with_each
 from .scene_error import SceneError
@@ -54,7 +55,7 @@ def read_detections(path: str | Path, frames: int, settings: LinkSettings = Link
     if not path.is_file():
         raise SceneError(f"{path}: no such detections file")
     rows: list[list[float]] = [[] for _ in range(frames)]
-    for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    for number, line in enumerate(read_user_text(path, errors="replace").splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = line.replace(" ", "").split(",")

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -26,7 +27,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from ..crop import protocol_box
+from ..errors import InputError
 from ..sources import read_image
+from ..user_files import read_user_text
 from .datasets import Dataset, DatasetError, load_dataset, plural, read_boxes
 from .metrics import Scores, SequenceCurves, summarise
 
@@ -45,12 +49,6 @@ class BoxTracker(Protocol):
     def init(self, frame: np.ndarray, gt_box: Box) -> None: ...
 
     def update(self, frame: np.ndarray) -> tuple[Box, float, str]: ...
-
-
-def protocol_box(gt_box: Sequence[float]) -> Box:
-    """The released test script's init box for a GT box: centre x + w/2, then x = cx - (w - 1)/2."""
-    x, y, w, h = (float(v) for v in gt_box)
-    return (x + 0.5, y + 0.5, w, h)
 
 
 class RuntimeTracker:
@@ -156,9 +154,15 @@ def _nano_factory(folder: Path | None, option: str) -> Callable[[], object]:
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         try:
             return cv2.TrackerNano.create(params)
+        except cv2.error as exc:  # a damaged or foreign .onnx: OpenCV names the file in its message
+            said = re.search(r"error: \([^)]*\) (.*?)(?: in function .*)?$", str(exc).strip(), re.MULTILINE)
+            detail = said.group(1) if said else str(exc).strip().splitlines()[-1]
+            raise TrackerUnavailable(f"{option}: OpenCV cannot load NanoTrack v2's weights in {backbone.parent} "
+                                     f"({detail})") from None
         finally:
             cv2.utils.logging.setLogLevel(level)
 
+    create()  # now, not at the first sequence: a run.json (or a benchmark) is not begun for weights that fail
     return create
 
 
@@ -267,7 +271,7 @@ def read_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
     for seq in dataset.sequences:
         path = Path(folder) / f"{seq.name}{STATES}"
         if path.is_file():
-            lines = [line.strip() for line in path.read_text().splitlines()]
+            lines = [line.strip() for line in read_user_text(path, encoding="utf-8").splitlines()]
             present[seq.name] = (path, [_state(path, n, line) for n, line in enumerate(lines, 1) if line])
     out = {}
     for seq in dataset.sequences:
@@ -457,7 +461,10 @@ def run_tracker(
             for path in seq.frames[1:]:
                 frame = read_frame(path)
                 start = time.perf_counter()
-                box, score, state = tracker.update(frame)
+                try:
+                    box, score, state = tracker.update(frame)
+                except InputError as exc:  # a frame of another size than the first
+                    raise EvalError(f"{path}: {exc}") from None
                 report.seconds += time.perf_counter() - start
                 boxes.append(box)
                 states.append((score, state))
