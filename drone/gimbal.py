@@ -129,12 +129,11 @@ def rates_for(det: Detection, config: GimbalConfig) -> Rates:
 
 
 def advance(aim: Aim, rates: Rates, dt: float, limits: Limits) -> Aim:
-    """The aim moved by rates × dt, kept inside the gimbal's limits (a vehicle-frame yaw at its stops, an
-    earth-frame yaw wrapped)."""
+    """The aim moved by rates × dt, kept inside the gimbal's limits: a vehicle-frame yaw stops at them (never
+    wrapped: +181° would send the gimbal the long way round to -179°), an earth-frame yaw is wrapped."""
     pitch = min(max(aim.pitch + rates.pitch * dt, limits.pitch_min), limits.pitch_max)
-    yaw = _wrap(aim.yaw + rates.yaw * dt)
-    if not aim.earth:
-        yaw = min(max(yaw, limits.yaw_min), limits.yaw_max)
+    yaw = aim.yaw + rates.yaw * dt
+    yaw = _wrap(yaw) if aim.earth else min(max(yaw, limits.yaw_min), limits.yaw_max)
     return Aim(pitch, yaw, aim.earth)
 
 

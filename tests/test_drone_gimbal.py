@@ -136,6 +136,10 @@ def test_an_earth_framed_attitude_is_aimed_earth_locked_and_limits_hold() -> Non
     right = det((600, 220, 40, 40), stamp=0.05)
     sp = f.step(0.05, right, ME)[0]
     assert sp.flags & mavlink.GIMBAL_MANAGER_FLAGS_YAW_LOCK and -math.pi < sp.yaw < 0  # wrapped through ±180°
+    # a vehicle-frame yaw stops at its stop, never wraps round (the gimbal would swing the long way)
+    v = in_control("ardupilot", 0.0, 3.1)
+    yaws = [v.step(k * 0.05, det((600, 220, 40, 40), stamp=k * 0.05), ME)[0].yaw for k in range(1, 10)]
+    assert yaws[-1] == pytest.approx(math.pi) and all(y > 3.0 for y in yaws)
     # vehicle-frame yaw and pitch stop at the manager's limits (GIMBAL_MANAGER_INFORMATION)
     g = in_control("ardupilot", 0.0, 0.0)
     limits = mavlink.MAVLink_gimbal_manager_information_message(0, 0, 1, 0, 0, -1.0, 0.2, -0.3, 0.3)
