@@ -8,8 +8,10 @@ Protocol (common.xml, "Gimbal Protocol v2"):
   has been heard);
 - with a target, we take primary control with MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE (param1/2: our system and
   component, secondary left unchanged, param7 the gimbal device), retried every `configure_retry` seconds
-  until it is ACCEPTED or GIMBAL_MANAGER_STATUS names us, at most `configure_tries` times; with it goes
-  MAV_CMD_SET_MESSAGE_INTERVAL for GIMBAL_DEVICE_ATTITUDE_STATUS (where the gimbal points now);
+  until it is ACCEPTED or GIMBAL_MANAGER_STATUS names us, at most `configure_tries` times; with it go
+  MAV_CMD_SET_MESSAGE_INTERVAL for GIMBAL_DEVICE_ATTITUDE_STATUS (where the gimbal points now) and
+  MAV_CMD_REQUEST_MESSAGE for GIMBAL_MANAGER_INFORMATION (its angle limits: an aim past them would wind up,
+  and the gimbal would sit at its stop while the aim came back);
 - someone else takes primary control (a pilot in the ground station): we stop sending and do not take it
   back until the next target.
 
@@ -249,6 +251,13 @@ class GimbalFollower:
             float(mavlink.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS), ATTITUDE_INTERVAL_US, 0, 0, 0, 0, 0,
         )  # fmt: skip
 
+    def _request_limits(self, me: tuple[int, int]) -> Any:
+        system, component = self._address(me)
+        return mavlink.MAVLink_command_long_message(
+            system, component, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+            float(mavlink.MAVLINK_MSG_ID_GIMBAL_MANAGER_INFORMATION), 0, 0, 0, 0, 0, 0,
+        )  # fmt: skip
+
     def _point(self, me: tuple[int, int], aim: Aim) -> Any:
         """The aim in the message this autopilot acts on (see the module docstring)."""
         system, component = self._address(me)
@@ -305,7 +314,7 @@ class GimbalFollower:
                 return []
             self._tries += 1
             self._next_configure = self._next_interval = now + cfg.configure_retry
-            return [self._configure(me, take=True), self._attitude_interval(me)]
+            return [self._configure(me, take=True), self._attitude_interval(me), self._request_limits(me)]
         # CONTROL
         assert det is not None
         if self.aim is None:

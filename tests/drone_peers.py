@@ -232,6 +232,7 @@ class GimbalManager(Peer):
     module run one (`flavour`):
     - GIMBAL_MANAGER_STATUS at 5 Hz; MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE sets (or with -3 releases) primary
       control and is ACKed; setpoints are obeyed only from the primary controller (others count in `ignored`);
+      MAV_CMD_REQUEST_MESSAGE for GIMBAL_MANAGER_INFORMATION gets its limits (±90° pitch, ±170° yaw);
     - ArduPilot acts on GIMBAL_MANAGER_SET_PITCHYAW and _SET_ATTITUDE; PX4 only on _SET_ATTITUDE (its MAVLink
       receiver has no SET_PITCHYAW handler: those count in `unhandled`);
     - an angle target is approached at `slew` rad/s (≈ 90°/s) per axis and then held; a rate target is integrated
@@ -241,7 +242,7 @@ class GimbalManager(Peer):
     `commands` records (time, pitch_rate, yaw_rate, pitch, yaw, flags) of the obeyed setpoints, `path`
     (time, pitch, yaw) of the gimbal at 50 Hz; `deaf = True` drops everything received (a cut link)."""
 
-    PITCH_LIMIT, YAW_LIMIT = math.radians(90), math.radians(180)
+    PITCH_LIMIT, YAW_LIMIT = math.radians(90), math.radians(170)
 
     def __init__(
         self, url: str, sysid: int = 1, compid: int = 154, flavour: str = "ardupilot", slew: float = 1.6, **kw: Any
@@ -338,6 +339,12 @@ class GimbalManager(Peer):
                 self.primary = (int(msg.param1), int(msg.param2))
             self._next = 0.0
             self.send(mavlink.MAVLink_command_ack_message(msg.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, *source))
+        elif kind == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE and msg.param1 == 280:
+            if msg.target_component not in (0, self.compid):
+                return
+            self.send(mavlink.MAVLink_command_ack_message(msg.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, *source))
+            p, y = self.PITCH_LIMIT, self.YAW_LIMIT
+            self.send(mavlink.MAVLink_gimbal_manager_information_message(0, 0, 1, 0, 0, -p, p, -y, y))
         elif kind in ("GIMBAL_MANAGER_SET_PITCHYAW", "GIMBAL_MANAGER_SET_ATTITUDE"):
             if msg.target_component not in (0, self.compid):
                 return

@@ -77,8 +77,9 @@ def test_take_control_follow_stop_and_release() -> None:
     f.on_message(status(), ME)
     assert f.manager == (1, 154)
     out = f.step(0.0, det(stamp=0.0), ME)
-    # take control, and ask for the gimbal's attitude at 20 Hz
-    assert kinds(out) == ["CMD1001:1", "CMD511:285"] and (out[0].param2, out[0].param3, out[0].param4) == (100, -1, -1)
+    # take control, ask for the gimbal's attitude at 20 Hz and for its limits
+    assert kinds(out) == ["CMD1001:1", "CMD511:285", "CMD512:280"]
+    assert (out[0].param2, out[0].param3, out[0].param4) == (100, -1, -1)
     assert out[1].param2 == 50_000 and all((m.target_system, m.target_component) == (1, 154) for m in out)
     assert f.step(0.05, det(stamp=0.05), ME) == []  # waits for the answer
     f.on_message(ack(), ME)
@@ -191,6 +192,7 @@ def test_gimbal_follows_through_a_gimbal_manager() -> None:
             rig.start_tracking((0.7, 0.6, 0.8, 0.7))  # right of centre and low
             assert wait_until(lambda: gm.primary == ME and len(gm.commands) >= 10, 3)
             assert gm.configures[0][1:] == (ME, 1.0, 100.0) and gm.ignored == 0
+            assert rig.service.gimbal.limits.yaw_max == pytest.approx(gm.YAW_LIMIT)  # asked for and heard
             t0 = time.monotonic()
             time.sleep(1.0)
             following = [c for c in gm.commands if c[0] >= t0]
