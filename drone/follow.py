@@ -22,8 +22,15 @@ Safety rules:
   (COM_OF_LOSS_T). So with an armed PX4 vehicle and a target (tracking, uncertain or lost: the tracker is
   still on it), the stream never pauses: zeros outside OFFBOARD (PX4 ignores them there), zeros in
   OFFBOARD whenever the detection is not trusted (lost or stale: zero at once, no slew), and real ones
-  only after `prestream` seconds of streaming. Only stopping the target (or an error), disarming, or the
-  autopilot's heartbeat lost ends it (zeros, then nothing).
+  only after `prestream` seconds of streaming. Disarming, or the autopilot's heartbeat lost, ends it
+  (zeros, then nothing); so does the target ending (stopped, or an error) outside OFFBOARD.
+- PX4 in OFFBOARD when the target ends: a stream that stops is PX4's offboard-loss failsafe `COM_OF_LOSS_T`
+  later, and with PX4's defaults and no RC that failsafe lands the vehicle. So we hand it over (HANDOVER):
+  zeros go on streaming while we ask for Hold (MAV_CMD_DO_SET_MODE AUTO_LOITER, the mode MAVSDK's
+  offboard stop hands over to; `Setpoint.hold` asks the link loop to send it, every `hold_retry` s), and
+  end only when the heartbeat says the vehicle left OFFBOARD (Hold, or the pilot's choice) or disarmed. A
+  PX4 that refuses Hold thus keeps getting zeros and holds in OFFBOARD. ArduCopter GUIDED needs none of
+  this: it holds by itself `GUID_TIMEOUT` after the last setpoint.
 """
 
 from __future__ import annotations
@@ -39,8 +46,9 @@ MODE_FLAG_ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED
 COPTER_TYPES = frozenset({2, 3, 4, 13, 14, 15, 29, 35})
 ARDUCOPTER_GUIDED = 4  # copter custom_mode; 4 is AUTOTUNE on ArduPlane, hence the frame check
 PX4_OFFBOARD = 6  # PX4 main mode, custom_mode bits 16-23
+PX4_AUTO, PX4_AUTO_LOITER = 4, 3  # Hold: main mode AUTO, sub mode (bits 24-31) LOITER
 
-OFF, PRESTREAM, FOLLOW, HOLD, STOPPING = "off", "prestream", "follow", "hold", "stopping"
+OFF, PRESTREAM, FOLLOW, HOLD, STOPPING, HANDOVER = "off", "prestream", "follow", "hold", "stopping", "handover"
 ACTIVE_STATES = ("tracking", "uncertain")
 TARGET_STATES = ("tracking", "uncertain", "lost")  # the tracker is still on a target (it may find it again)
 MAX_TRUST_STEP = 0.2  # s: the most frame time one result counts for in the trust level
@@ -133,12 +141,14 @@ class FollowConfig:
     trust_tau: float = 0.3  # s of frame time: how fast the trust level follows the tracker's state
     trust_on: float = 0.7  # level at which trust comes back
     trust_off: float = 0.3  # level at which it is lost
+    hold_retry: float = 0.5  # s between requests for PX4 Hold while handing over
 
 
 @dataclass(frozen=True)
 class Setpoint:
     velocity: Velocity
     reason: str
+    hold: bool = False  # also ask the autopilot for Hold (PX4 AUTO_LOITER)
 
 
 ZERO = Velocity()
@@ -237,6 +247,7 @@ class Follower:
         self._last_time: float | None = None
         self._prestream_since = 0.0
         self._stops_left = 0
+        self._next_hold = 0.0
 
     def _observe_target(self, det: Detection | None) -> None:
         if det is None:
@@ -278,12 +289,18 @@ class Follower:
             if not armed:
                 self._go(OFF, "disarmed")
                 return None
-            if self.state == STOPPING:
+            if self.state in (STOPPING, HANDOVER):
                 if autopilot is not None and autopilot.flavour == "px4" and ours and target in TARGET_STATES:
+                    if self.state == HANDOVER:
+                        self._prestream_since = now  # Hold may still come: zeros first, as after a switch
                     return self._px4(now, in_mode, fresh, target, trusted, det, periodic)  # a target again
+                if self.state == HANDOVER:
+                    return self._handing_over(now, periodic) if in_mode else self._quiet_off(autopilot)
                 return self._stopping(periodic) if in_mode else self._quiet_off(autopilot)
             if autopilot is not None and autopilot.flavour == "px4":
                 if not (ours and target in TARGET_STATES):
+                    if in_mode:
+                        return self._handover(now, f"target {target}")
                     return self._stop(f"target {target}")
                 return self._px4(now, in_mode, fresh, target, trusted, det, periodic)
             if not in_mode:
@@ -343,6 +360,21 @@ class Follower:
             return Setpoint(ZERO, self.reason) if periodic else None
         self._go(FOLLOW if trusted else HOLD, f"target {target}" + ("" if trusted else " (not trusted)"))
         return self._command(now, det) if periodic and det is not None else None
+
+    def _handover(self, now: float, reason: str) -> Setpoint:
+        """PX4 in OFFBOARD and the target gone: zero at once, and ask for Hold (see the module docstring)."""
+        self._go(HANDOVER, f"{reason}: handing over to Hold")
+        self._last, self._last_time = ZERO, None
+        self._next_hold = now + self.config.hold_retry
+        return Setpoint(ZERO, f"stop: {reason}", hold=True)
+
+    def _handing_over(self, now: float, periodic: bool) -> Setpoint | None:
+        if not periodic:
+            return None
+        hold = now >= self._next_hold
+        if hold:
+            self._next_hold = now + self.config.hold_retry
+        return Setpoint(ZERO, self.reason, hold=hold)
 
     def _stopping(self, periodic: bool) -> Setpoint | None:
         if not periodic:

@@ -7,8 +7,9 @@ autopilot's heartbeat gives its id, unless --sysid), only while the tracker loop
 every 0.2 s, frames or not); system_status BOOT before the first frame, ACTIVE while frames arrive,
 CRITICAL when they stopped (the camera is being reopened).
 
-Gimbal following: GIMBAL_MANAGER_STATUS / _INFORMATION and the gimbal manager's COMMAND_ACKs from our system
-go to the GimbalFollower; its messages leave on every new result and at its own rate.
+Gimbal following: GIMBAL_MANAGER_STATUS / _INFORMATION, GIMBAL_DEVICE_ATTITUDE_STATUS and the gimbal manager's
+COMMAND_ACKs from our system go to the GimbalFollower, and the autopilot's type from its heartbeat; its
+messages leave on every new result and at its own rate.
 """
 
 from __future__ import annotations
@@ -22,8 +23,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .camera import STALLED_AFTER, CameraComponent, tracking_status
-from .follow import ZERO, Autopilot, Detection, Follower, Setpoint
-from .gimbal import GimbalFollower
+from .follow import PX4_AUTO, PX4_AUTO_LOITER, ZERO, Autopilot, Detection, Follower, Setpoint
+from .gimbal import SETPOINT_MESSAGES, GimbalFollower
 from .link import Link, is_autopilot_heartbeat
 from .logs import Throttle
 from .mav import mavlink
@@ -40,7 +41,12 @@ TYPE_MASK_VELOCITY_YAW_RATE = (
     | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
     | mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
 )  # = 1479: velocity and yaw rate only
-GIMBAL_MESSAGES = ("GIMBAL_MANAGER_STATUS", "GIMBAL_MANAGER_INFORMATION", "COMMAND_ACK")
+GIMBAL_MESSAGES = (
+    "GIMBAL_MANAGER_STATUS",
+    "GIMBAL_MANAGER_INFORMATION",
+    "GIMBAL_DEVICE_ATTITUDE_STATUS",
+    "COMMAND_ACK",
+)
 MAX_SLICE = 0.05  # longest select() wait: bounds how late a link open or a silence check can be
 
 
@@ -49,8 +55,9 @@ class LinkStats:
     heartbeats: int = 0
     statuses: int = 0
     setpoints: int = 0
-    gimbal: int = 0  # GIMBAL_MANAGER_SET_PITCHYAW sent
-    gimbal_reactions: list[float] = field(default_factory=list)  # result → zero rates sent (lost, stop), s
+    hold_requests: int = 0  # MAV_CMD_DO_SET_MODE Hold sent (PX4 OFFBOARD handed over)
+    gimbal: int = 0  # GIMBAL_MANAGER_SET_PITCHYAW / _SET_ATTITUDE sent
+    gimbal_reactions: list[float] = field(default_factory=list)  # result → the aim held (lost, stop), s
     latencies: list[float] = field(default_factory=list)  # tracker result → 275 sent, seconds
 
     def add_latency(self, value: float) -> None:
@@ -157,11 +164,13 @@ class LinkLoop:
             if is_autopilot_heartbeat(msg) and self._is_our_autopilot(msg):
                 self.autopilot = Autopilot(msg.autopilot, msg.type, msg.base_mode, msg.custom_mode, now)
                 self.autopilot_component = msg.get_srcComponent()
+                if self.gimbal is not None:
+                    self.gimbal.autopilot = self.autopilot.flavour
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             for reply in self.camera.handle(msg, self.link.sysid, now):
                 self.link.send(reply, now)
         if self.gimbal is not None and kind in GIMBAL_MESSAGES and msg.get_srcSystem() == self.link.sysid:
-            self.gimbal.on_message(msg, self._me)
+            self.gimbal.on_message(msg, self._me, now)
 
     @property
     def _me(self) -> tuple[int, int]:
@@ -190,7 +199,7 @@ class LinkLoop:
         if self.gimbal is not None:
             messages = self.gimbal.step(now, _detection(snapshot), self._me, periodic=False)
             self._send_gimbal(messages, now)
-            if any(m.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW" for m in messages):
+            if any(m.get_type() in SETPOINT_MESSAGES for m in messages):
                 self.stats.gimbal_reactions.append(time.monotonic() - snapshot.result_time)
                 del self.stats.gimbal_reactions[:-1000]
 
@@ -223,7 +232,7 @@ class LinkLoop:
 
     def _send_gimbal(self, messages: list[Any], now: float) -> None:
         for msg in messages:
-            if self.link.send(msg, now) and msg.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW":
+            if self.link.send(msg, now) and msg.get_type() in SETPOINT_MESSAGES:
                 self.stats.gimbal += 1
 
     def _heartbeat(self, now: float) -> Any:
@@ -250,17 +259,32 @@ class LinkLoop:
         )  # fmt: skip
         if self.link.send(msg, now):
             self.stats.setpoints += 1
+        if setpoint.hold:
+            self._ask_for_hold(now)
+
+    def _ask_for_hold(self, now: float) -> None:
+        """MAV_CMD_DO_SET_MODE to PX4's Hold (AUTO_LOITER): the end of an OFFBOARD stream without failsafe."""
+        command = mavlink.MAVLink_command_long_message(
+            self.link.sysid, self.autopilot_component, mavlink.MAV_CMD_DO_SET_MODE, 0,
+            float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(PX4_AUTO), float(PX4_AUTO_LOITER), 0, 0, 0, 0,
+        )  # fmt: skip
+        if self.link.send(command, now):
+            self.stats.hold_requests += 1
+            self._throttle.log(logging.INFO, "hold", "follow: asking PX4 for Hold before the setpoint stream ends")
 
     def _shutdown(self) -> None:
-        """Stopping while commanding the vehicle: one last zero velocity."""
-        if self.follower is not None and self.follower.state not in ("off", "prestream"):
-            self._send_setpoint(Setpoint(ZERO, "service stopping"), time.monotonic())
-            log.info("follow: zero velocity sent on shutdown")
+        """Stopping while commanding the vehicle: one last zero velocity (and, PX4 in OFFBOARD, Hold)."""
+        ap = self.autopilot
+        hold = self.follower is not None and self.follower.state != "off"
+        hold = hold and ap is not None and ap.flavour == "px4" and ap.in_control_mode
+        if self.follower is not None and (self.follower.state not in ("off", "prestream") or hold):
+            self._send_setpoint(Setpoint(ZERO, "service stopping", hold=hold), time.monotonic())
+            log.info("follow: zero velocity%s sent on shutdown", " and Hold" if hold else "")
         if self.gimbal is not None:
             messages = self.gimbal.release(self._me)
             if messages:
                 self._send_gimbal(messages, time.monotonic())
-                log.info("gimbal: zero rates and control released on shutdown")
+                log.info("gimbal: aim held and control released on shutdown")
 
 
 def _advance(due: float, period: float, now: float) -> float:

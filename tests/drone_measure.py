@@ -5,10 +5,10 @@ synthetic 30 FPS camera, simulated autopilot, PX4 and gimbal manager)."""
 
 from __future__ import annotations
 
+import math
 import socket
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -108,10 +108,25 @@ def px4(w: float) -> None:
             f"PX4 OFFBOARD through flicker and loss: {rate(setpoints):.2f} Hz, longest gap"
             f" {max_gap(setpoints):.1f} ms, failsafes {ap.failsafes}"
         )
+        stop = time.monotonic()
+        rig.gcs.call(mavlink.MAV_CMD_CAMERA_STOP_TRACKING)
+        assert wait_until(lambda: ap.custom_mode == Px4.HOLD, 3)
+        held = time.monotonic()
+        time.sleep(1.5)
+        gap = max_gap([r.at for r in ap.setpoints(start)] + [held])
+        print(
+            f"PX4 STOP_TRACKING in OFFBOARD -> Hold: {(held - stop) * 1000:.0f} ms (longest setpoint gap before it"
+            f" {gap:.1f} ms), failsafes {ap.failsafes}"
+        )
 
 
-def first_zero_after(gm: GimbalManager, t: float) -> Callable[[], bool]:
-    return lambda: any(c[0] > t and c[2] == 0 for c in gm.commands)
+def swing(rig: Rig, gm: GimbalManager) -> None:
+    """Put the target left of centre if the gimbal points right, else right, at the image's mid-height: the
+    gimbal swings back and forth, never resting at a stop, so that "at rest" after a loss is the service's
+    doing."""
+    with rig.tracker.lock:
+        x, y, w, h = rig.tracker.box
+        rig.tracker.box = ((0.1 if gm.yaw > 0 else 0.8) * 640, 240 - h / 2, w, h)
 
 
 def gimbal_follow(w: float) -> None:
@@ -124,35 +139,73 @@ def gimbal_follow(w: float) -> None:
             time.sleep(0.5)
             span = window(w)
             commands = between([c[0] for c in gm.commands], span)
-            print(f"gimbal SET_PITCHYAW {rate(commands):.2f} Hz, longest gap {max_gap(commands):.1f} ms")
-            reactions = []
+            print(f"gimbal SET_PITCHYAW (angles) {rate(commands):.2f} Hz, longest gap {max_gap(commands):.1f} ms")
+            reactions, rests = [], []
             for _ in range(15):
+                swing(rig, gm)
                 rig.tracker.state = "tracking"
                 time.sleep(0.6)
+                assert wait_until(lambda: gm.speed_after(time.monotonic() - 0.1)[1] > math.radians(10), 3)
                 seen = len(rig.tracker.updates)
                 rig.tracker.state = "lost"
                 assert wait_until(lambda seen=seen: any(s == "lost" for _, s, _ in rig.tracker.updates[seen:]), 2)
                 lost_at = next(t for t, s, _ in rig.tracker.updates[seen:] if s == "lost")
-                assert wait_until(first_zero_after(gm, lost_at), 2)
-                reactions.append(next(c[0] for c in gm.commands if c[0] > lost_at and c[2] == 0) - lost_at)
+                assert wait_until(lambda lost_at=lost_at: any(c[0] > lost_at for c in gm.commands), 2)
+                reactions.append(next(c[0] for c in gm.commands if c[0] > lost_at) - lost_at)
+                time.sleep(0.5)
+                rests.append(gm.speed_after(lost_at)[0] - lost_at)
             own = rig.service.loop.stats.gimbal_reactions
             print(
-                f"gimbal loss ('lost' result -> zero rates at the manager, n={len(reactions)}):"
+                f"gimbal loss ('lost' result -> the aim held at the manager, n={len(reactions)}):"
                 f" p50 {ms(reactions, 50):.2f} ms, p95 {ms(reactions, 95):.2f} ms"
-                f" (in the service: p50 {ms(own, 50):.2f} ms, p95 {ms(own, 95):.2f} ms)"
+                f" (in the service: p50 {ms(own, 50):.2f} ms, p95 {ms(own, 95):.2f} ms);"
+                f" gimbal at rest (< 1°/s) after p50 {ms(rests, 50):.0f} ms, max {max(rests) * 1000:.0f} ms"
             )
             rig.tracker.state = "tracking"
             stale = []
             for _ in range(5):
+                swing(rig, gm)
                 time.sleep(0.6)
+                assert wait_until(lambda: gm.speed_after(time.monotonic() - 0.1)[1] > math.radians(10), 3)
                 rig.tracker.running.clear()
                 hung = time.monotonic()
-                assert wait_until(first_zero_after(gm, hung), 2)
-                stale.append(next(c[0] for c in gm.commands if c[0] > hung and c[2] == 0) - hung)
+                time.sleep(0.8)
+                stale.append(gm.speed_after(hung)[0] - hung)
                 rig.tracker.running.set()
-            print(f"gimbal, tracker hung -> zero rates: {min(stale) * 1000:.0f}-{max(stale) * 1000:.0f} ms")
+            print(f"gimbal, tracker hung -> gimbal at rest: {min(stale) * 1000:.0f}-{max(stale) * 1000:.0f} ms")
         finally:
             gm.close()
+
+
+def gimbal_silent(repeats: int = 3) -> None:
+    """Mid-follow at 40°/s, the service killed (not one more packet) or the link cut: time to rest."""
+    for flavour in ("ardupilot", "px4"):
+        for how in ("killed", "link cut"):
+            rests = []
+            for _ in range(repeats):
+                compid = 1 if flavour == "px4" else 154
+                with Rig(gimbal=GimbalConfig(rate_hz=20.0, max_rate=math.radians(40)), flavour=flavour) as rig:
+                    gm = GimbalManager(f"udpout:127.0.0.1:{rig.port}", compid=compid, flavour=flavour).start()
+                    try:
+                        assert rig.connected() and wait_until(lambda rig=rig: rig.service.gimbal.manager is not None, 3)
+                        rig.start_tracking((0.8, 0.45, 0.9, 0.55))
+                        assert wait_until(lambda gm=gm: gm.yaw > math.radians(15), 3)
+                        time.sleep(0.5)
+                        if how == "killed":
+                            rig.service.link.send = lambda msg, now: False
+                            silent = time.monotonic()
+                            rig.service.stop()
+                        else:
+                            gm.deaf = True
+                            silent = time.monotonic()
+                        time.sleep(2.0)
+                        rests.append(gm.speed_after(silent)[0] - silent)
+                    finally:
+                        gm.close()
+            print(
+                f"gimbal on {flavour}, service {how} mid-follow (40°/s) -> at rest (< 1°/s) after"
+                f" {', '.join(f'{r * 1000:.0f}' for r in rests)} ms"
+            )
 
 
 if __name__ == "__main__":
@@ -160,3 +213,4 @@ if __name__ == "__main__":
     camera_and_vehicle(seconds)
     px4(seconds)
     gimbal_follow(seconds)
+    gimbal_silent()

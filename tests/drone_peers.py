@@ -6,6 +6,7 @@ Every wait here is bounded; nothing leaves the loopback interface.
 
 from __future__ import annotations
 
+import math
 import socket
 import threading
 import time
@@ -14,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from pymavlink.quaternion import QuaternionBase
 
 from dadiff.drone.follow import AUTOPILOT_ARDUPILOT, AUTOPILOT_PX4
 from dadiff.drone.mav import mavlink, mavutil
@@ -166,16 +168,42 @@ class Autopilot(Peer):
 class Px4(Autopilot):
     """PX4's OFFBOARD rules, as PX4 SIH enforces them: the switch into OFFBOARD is refused unless setpoints
     are streaming (one within `switch_window`), and in OFFBOARD a gap longer than `loss_timeout`
-    (COM_OF_LOSS_T) is a failsafe: the vehicle drops to POSCTL and `failsafes` counts it."""
+    (COM_OF_LOSS_T, default 1 s) is a failsafe: with PX4's defaults and no RC the vehicle lands (AUTO_LAND)
+    and `failsafes` counts it. MAV_CMD_DO_SET_MODE (base mode CUSTOM, param2 main mode, param3 sub mode) is
+    obeyed and ACKed, as PX4's commander does; `mode_requests` records (time, custom_mode) of each."""
 
     OFFBOARD, POSCTL = 6 << 16, 3 << 16
+    HOLD, LAND = (4 << 16) | (3 << 24), (4 << 16) | (6 << 24)  # AUTO_LOITER, AUTO_LAND
 
-    def __init__(self, url: str, loss_timeout: float = 0.5, switch_window: float = 0.5, **kw: Any) -> None:
+    def __init__(self, url: str, loss_timeout: float = 1.0, switch_window: float = 0.5, **kw: Any) -> None:
         super().__init__(url, "px4", **kw)
         self.loss_timeout, self.switch_window = loss_timeout, switch_window
         self.failsafes = 0
         self.max_gap = 0.0  # longest gap between setpoints while in OFFBOARD
+        self.mode_requests: list[tuple[float, int]] = []
+        self.refuse_modes = False  # True: DO_SET_MODE is DENIED (a vehicle that cannot hold position)
         self._offboard_since: float | None = None
+        self._handled = 0
+
+    def _commands(self) -> None:
+        with self._lock:
+            new, self._handled = self.log[self._handled :], len(self.log)
+        for r in new:
+            msg = r.msg
+            if msg.get_type() != "COMMAND_LONG" or msg.command != mavlink.MAV_CMD_DO_SET_MODE:
+                continue
+            if msg.target_system != self.sysid or msg.target_component not in (0, self.compid):
+                continue
+            mode = (int(msg.param2) << 16) | (int(msg.param3) << 24)
+            self.mode_requests.append((r.at, mode))
+            if int(msg.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED and not self.refuse_modes:
+                self._offboard_since = time.monotonic() if mode == self.OFFBOARD else None
+                self.set_mode(self.armed, mode)
+                result = mavlink.MAV_RESULT_ACCEPTED
+            else:
+                result = mavlink.MAV_RESULT_DENIED
+            source = (msg.get_srcSystem(), msg.get_srcComponent())
+            self.send(mavlink.MAVLink_command_ack_message(msg.command, result, 0, 0, *source))
 
     def request_offboard(self) -> bool:
         last = self.setpoints()
@@ -186,6 +214,7 @@ class Px4(Autopilot):
         return True
 
     def tick(self) -> None:
+        self._commands()
         if self.custom_mode == self.OFFBOARD and self._offboard_since is not None:
             now = time.monotonic()
             times = [self._offboard_since] + [r.at for r in self.setpoints(self._offboard_since)]
@@ -194,24 +223,43 @@ class Px4(Autopilot):
             if now - times[-1] > self.loss_timeout:
                 self.failsafes += 1
                 self._offboard_since = None
-                self.set_mode(True, self.POSCTL)
+                self.set_mode(True, self.LAND)
         super().tick()
 
 
 class GimbalManager(Peer):
-    """A MAVLink gimbal manager (protocol v2) that enforces who is in control: GIMBAL_MANAGER_STATUS at 5 Hz,
-    MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE sets (or with -3 releases) primary control and is ACKed,
-    GIMBAL_MANAGER_SET_PITCHYAW is obeyed only from the primary controller (others are counted in
-    `ignored`). `commands` records (time, pitch_rate, yaw_rate, pitch, yaw, flags) of the obeyed ones."""
+    """A MAVLink gimbal manager (protocol v2) with a gimbal behind it, as ArduPilot's AP_Mount or PX4's gimbal
+    module run one (`flavour`):
+    - GIMBAL_MANAGER_STATUS at 5 Hz; MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE sets (or with -3 releases) primary
+      control and is ACKed; setpoints are obeyed only from the primary controller (others count in `ignored`);
+      MAV_CMD_REQUEST_MESSAGE for GIMBAL_MANAGER_INFORMATION gets its limits (±90° pitch, ±170° yaw);
+    - ArduPilot acts on GIMBAL_MANAGER_SET_PITCHYAW and _SET_ATTITUDE; PX4 only on _SET_ATTITUDE (its MAVLink
+      receiver has no SET_PITCHYAW handler: those count in `unhandled`);
+    - an angle target is approached at `slew` rad/s (≈ 90°/s) per axis and then held; a rate target is integrated
+      until replaced, forever (ArduPilot 4.7.0-dev as measured, PX4's gimbal module), up to the limits;
+    - GIMBAL_DEVICE_ATTITUDE_STATUS at 20 Hz: ArduPilot's with yaw in the vehicle frame, PX4's (its output
+      angles) with YAW_LOCK and no frame flag, as each sends it.
+    `commands` records (time, pitch_rate, yaw_rate, pitch, yaw, flags) of the obeyed setpoints, `path`
+    (time, pitch, yaw) of the gimbal at 50 Hz; `deaf = True` drops everything received (a cut link)."""
 
-    def __init__(self, url: str, sysid: int = 1, compid: int = 154, **kw: Any) -> None:
+    PITCH_LIMIT, YAW_LIMIT = math.radians(90), math.radians(170)
+
+    def __init__(
+        self, url: str, sysid: int = 1, compid: int = 154, flavour: str = "ardupilot", slew: float = 1.6, **kw: Any
+    ) -> None:
         super().__init__(url, sysid, compid, **kw)
+        self.flavour, self.slew = flavour, slew
         self.primary = (0, 0)
         self.commands: list[tuple[float, float, float, float, float, int]] = []
-        self.ignored = 0
+        self.ignored = self.unhandled = 0
         self.configures: list[tuple[float, tuple[int, int], float, float]] = []
         self.answer = True  # False: ignore CONFIGURE commands (a manager that does not answer)
-        self._next = 0.0
+        self.deaf = False
+        self.pitch = self.yaw = 0.0
+        self.target: tuple[str, float, float] = ("angle", 0.0, 0.0)  # ("angle" | "rate", pitch, yaw)
+        self.path: list[tuple[float, float, float]] = []
+        self._next = self._next_attitude = self._next_path = 0.0
+        self._moved_at = time.monotonic()
         self._handled = 0
 
     def take_control(self, sysid: int, compid: int) -> None:
@@ -219,15 +267,61 @@ class GimbalManager(Peer):
         self.primary = (sysid, compid)
         self._next = 0.0
 
+    def point(self, pitch: float, yaw: float) -> None:
+        """Someone else (RC, the pilot) pointed the gimbal here."""
+        self.pitch, self.yaw, self.target = pitch, yaw, ("angle", pitch, yaw)
+
     def tick(self) -> None:
         with self._lock:
             new, self._handled = self.log[self._handled :], len(self.log)
         for r in new:
-            self._handle(r)
+            if not self.deaf:
+                self._handle(r)
         now = time.monotonic()
+        self._move(now)
         if now >= self._next:
             self._next = now + 0.2
             self.send(mavlink.MAVLink_gimbal_manager_status_message(0, 0, 0, *self.primary, 0, 0))
+        if now >= self._next_attitude:
+            self._next_attitude = now + 0.05
+            self.send(self._attitude())
+
+    def _move(self, now: float) -> None:
+        dt, self._moved_at = now - self._moved_at, now
+        kind, a, b = self.target
+        if kind == "rate":
+            self.pitch += a * dt
+            self.yaw += b * dt
+        else:
+            step = self.slew * dt
+            self.pitch += max(-step, min(step, a - self.pitch))
+            self.yaw += max(-step, min(step, b - self.yaw))
+        self.pitch = max(-self.PITCH_LIMIT, min(self.PITCH_LIMIT, self.pitch))
+        self.yaw = max(-self.YAW_LIMIT, min(self.YAW_LIMIT, self.yaw))
+        if now >= self._next_path:
+            self._next_path = now + 0.02
+            self.path.append((now, self.pitch, self.yaw))
+
+    def _attitude(self) -> Any:
+        q = [float(v) for v in QuaternionBase([0.0, self.pitch, self.yaw]).q]
+        locks = mavlink.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mavlink.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+        if self.flavour == "px4":
+            flags = locks | mavlink.GIMBAL_DEVICE_FLAGS_YAW_LOCK | mavlink.GIMBAL_DEVICE_FLAGS_NEUTRAL
+        else:
+            flags = locks | mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+        nan = float("nan")
+        return mavlink.MAVLink_gimbal_device_attitude_status_message(0, 0, 0, flags, q, nan, nan, nan, 0, nan, nan, 1)
+
+    def speed_after(self, since: float) -> tuple[float, float]:
+        """(last time the gimbal moved faster than 1°/s after `since`, or `since`; its fastest since then)."""
+        track = [p for p in self.path if p[0] >= since]
+        moving, fastest = since, 0.0
+        for (t0, p0, y0), (t1, p1, y1) in zip(track, track[1:], strict=False):
+            speed = math.hypot(p1 - p0, y1 - y0) / max(t1 - t0, 1e-6)
+            fastest = max(fastest, speed)
+            if speed > math.radians(1.0):
+                moving = t1
+        return moving, fastest
 
     def _handle(self, r: Received) -> None:
         msg, source = r.msg, (r.msg.get_srcSystem(), r.msg.get_srcComponent())
@@ -245,11 +339,32 @@ class GimbalManager(Peer):
                 self.primary = (int(msg.param1), int(msg.param2))
             self._next = 0.0
             self.send(mavlink.MAVLink_command_ack_message(msg.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, *source))
-        elif kind == "GIMBAL_MANAGER_SET_PITCHYAW" and msg.target_component in (0, self.compid):
+        elif kind == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE and msg.param1 == 280:
+            if msg.target_component not in (0, self.compid):
+                return
+            self.send(mavlink.MAVLink_command_ack_message(msg.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, *source))
+            p, y = self.PITCH_LIMIT, self.YAW_LIMIT
+            self.send(mavlink.MAVLink_gimbal_manager_information_message(0, 0, 1, 0, 0, -p, p, -y, y))
+        elif kind in ("GIMBAL_MANAGER_SET_PITCHYAW", "GIMBAL_MANAGER_SET_ATTITUDE"):
+            if msg.target_component not in (0, self.compid):
+                return
+            if kind == "GIMBAL_MANAGER_SET_PITCHYAW" and self.flavour == "px4":
+                self.unhandled += 1
+                return
             if source != self.primary:
                 self.ignored += 1
                 return
-            self.commands.append((r.at, msg.pitch_rate, msg.yaw_rate, msg.pitch, msg.yaw, msg.flags))
+            if kind == "GIMBAL_MANAGER_SET_PITCHYAW":
+                angles, rates = (msg.pitch, msg.yaw), (msg.pitch_rate, msg.yaw_rate)
+            else:
+                q = [float(v) for v in msg.q]
+                euler = QuaternionBase(q).euler if all(math.isfinite(v) for v in q) else (math.nan,) * 3
+                angles, rates = (float(euler[1]), float(euler[2])), (msg.angular_velocity_y, msg.angular_velocity_z)
+            if all(math.isfinite(v) for v in angles):
+                self.target = ("angle", *angles)
+            elif all(math.isfinite(v) for v in rates):
+                self.target = ("rate", *rates)
+            self.commands.append((r.at, rates[0], rates[1], angles[0], angles[1], msg.flags))
 
 
 class GroundStation(Peer):

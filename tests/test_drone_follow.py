@@ -184,11 +184,13 @@ def test_px4_stream_never_pauses_while_armed_with_a_target() -> None:
     assert any(v.yaw_rate > 0 for _, v in sent)  # it did follow (after the prestream second)
     first_lost = 30 + 40
     assert all(v.is_zero for t_, v in sent if first_lost / 30 <= t_ < (first_lost + 30) / 30)  # lost: zeros at once
-    # the pilot leaves OFFBOARD: zeros go on (so that OFFBOARD can be selected again); stop: zeros then nothing
+    # the pilot leaves OFFBOARD: zeros go on (so that OFFBOARD can be selected again); stop: a zero, then nothing
     assert run(f, t + 0.1, px4(t + 0.1, mode=PX4_POSCTL), det(stamp=t + 0.1)).velocity == ZERO
     assert f.state == follow.PRESTREAM
-    stops = [run(f, t + 0.2 + k * period, px4(t + 0.2), det(state="idle", stamp=t + 0.2)) for k in range(5)]
-    assert [s.velocity if s else None for s in stops] == [ZERO] * CFG.stop_repeats + [None] * (5 - CFG.stop_repeats)
+    # (outside OFFBOARD a stop is one zero, then nothing: PX4 ignores setpoints there)
+    posctl = px4(t + 0.2, mode=PX4_POSCTL)
+    stops = [run(f, t + 0.2 + k * period, posctl, det(state="idle", stamp=t + 0.2)) for k in range(5)]
+    assert [s.velocity if s else None for s in stops] == [ZERO] + [None] * 4
     assert f.state == follow.OFF
 
 
@@ -236,3 +238,60 @@ def test_px4_disarmed_or_no_target_sends_nothing() -> None:
     assert run(f, 0.1, px4(0.1, mode=PX4_POSCTL), det(state="lost", stamp=0.1)) is None
     assert run(f, 0.2, px4(0.2, mode=PX4_POSCTL), None) is None
     assert f.state == follow.OFF
+
+
+PX4_HOLD = (4 << 16) | (3 << 24)  # AUTO_LOITER
+
+
+def following_px4(t: float = 2.0) -> Follower:
+    """A follower streaming real setpoints to PX4 in OFFBOARD at time t."""
+    f = Follower(CFG)
+    for k in range(int(t * 15) + 1):
+        run(f, k / 15, px4(k / 15), det((500, 220, 40, 40), stamp=k / 15))
+    assert f.state == follow.FOLLOW
+    return f
+
+
+@pytest.mark.parametrize("end", ["idle", "error"])
+def test_px4_offboard_hands_over_to_hold_without_a_gap(end: str) -> None:
+    """Tracking stopped (or given up with an error) in OFFBOARD: zero at once with a request for Hold, zeros at
+    the setpoint rate (never a pause PX4 would fail safe on) with the request every hold_retry, until the
+    heartbeat says the vehicle left OFFBOARD; then nothing."""
+    f = following_px4()
+    t = 2.1
+    first = run(f, t, px4(t), det(state=end, stamp=t), periodic=False)  # on the result itself
+    assert first is not None and first.velocity == ZERO and first.hold and f.state == follow.HANDOVER
+    period = 1 / CFG.rate_hz
+    out = [(t + k * period, run(f, t + k * period, px4(t + k * period), det(state=end, stamp=t))) for k in range(1, 46)]
+    assert all(sp is not None and sp.velocity == ZERO for _, sp in out)  # 3 s of zeros: no gap
+    holds = [when for when, sp in out if sp.hold]
+    assert len(holds) == pytest.approx(3.0 / CFG.hold_retry, abs=1)  # asked again every 0.5 s
+    t = out[-1][0] + period
+    assert run(f, t, px4(t, mode=PX4_HOLD), det(state=end, stamp=t)) is None and f.state == follow.OFF
+    assert run(f, t + period, px4(t + period, mode=PX4_HOLD), det(state=end, stamp=t)) is None
+
+
+def test_px4_handover_ends_on_disarm_or_heartbeat_loss_and_a_new_target_streams_zeros_first() -> None:
+    f = following_px4()
+    assert run(f, 2.1, px4(2.1), det(state="idle", stamp=2.1)).hold
+    assert run(f, 2.2, px4(2.2, armed=False), det(state="idle", stamp=2.1)) is None and f.state == follow.OFF
+    g = following_px4()
+    run(g, 2.1, px4(2.1), det(state="idle", stamp=2.1))
+    t = 2.1 + CFG.heartbeat_timeout + 0.1
+    lost = run(g, t, px4(2.1), None)  # no heartbeat: zeros, then nothing (PX4's link-loss failsafe decides)
+    assert lost.velocity == ZERO and g.state == follow.STOPPING
+    h = following_px4()
+    run(h, 2.1, px4(2.1), det(state="idle", stamp=2.1))
+    times = [2.2 + k / 15 for k in range(30)]
+    new = [run(h, t, px4(t), det((500, 220, 40, 40), stamp=t, target=2)) for t in times]
+    assert all(sp is not None for sp in new)
+    assert all(sp.velocity == ZERO for sp in new[:14]) and new[-1].velocity.yaw_rate > 0  # a second of zeros first
+
+
+def test_guided_stop_is_unchanged() -> None:
+    """ArduCopter GUIDED holds by itself (GUID_TIMEOUT): zeros stop_repeats times, no mode request."""
+    f = Follower(CFG)
+    run(f, 0.0, ardupilot(0.0), det(stamp=0.0))
+    out = [run(f, 0.1 + k / 15, ardupilot(0.1 + k / 15), det(state="idle", stamp=0.1)) for k in range(6)]
+    assert [sp.velocity if sp else None for sp in out] == [ZERO] * CFG.stop_repeats + [None] * (6 - CFG.stop_repeats)
+    assert not any(getattr(sp, "hold", False) for sp in out if sp)

@@ -44,7 +44,7 @@ def test_flickering_score_does_not_flip_following(records: pytest.LogCaptureFixt
 def test_px4_offboard_holds_through_flicker_and_loss() -> None:
     """PX4 SIH's rules: OFFBOARD accepted while the zero stream runs; no failsafe through flicker, a lost
     target and its return; the gap between setpoints stays at the 15 Hz period (jitter aside), far from
-    COM_OF_LOSS_T."""
+    COM_OF_LOSS_T; STOP_TRACKING hands the vehicle to Hold before the stream ends."""
     with Rig(follow=FollowConfig(limits=LIMITS), autopilot=lambda url, **kw: Px4(url, loss_timeout=0.5, **kw)) as rig:
         ap, tracker = rig.ap, rig.tracker
         assert rig.connected()
@@ -71,6 +71,43 @@ def test_px4_offboard_holds_through_flicker_and_loss() -> None:
         during = [r for r in ap.setpoints(lost + 0.1) if r.at < found]
         assert during and all(r.msg.vx == r.msg.yaw_rate == 0 for r in during)  # zeros while lost
         assert rate([r.at for r in ap.setpoints(start) if r.at < end]) == pytest.approx(15.0, rel=0.15)
-        # stopping the target ends the stream: PX4 then fails safe by itself (COM_OF_LOSS_T), as documented
+        # stopping the target in OFFBOARD: zeros go on until PX4 is in Hold, so no offboard-loss failsafe
+        stop = time.monotonic()
         assert rig.gcs.call(2010).result == 0
-        assert wait_until(lambda: ap.failsafes == 1, 3)
+        assert wait_until(lambda: ap.custom_mode == Px4.HOLD, 2)
+        held = time.monotonic()
+        time.sleep(ap.loss_timeout + 1.0)
+        assert ap.failsafes == 0 and ap.custom_mode == Px4.HOLD and rig.service.follower.state == "off"
+        assert [m for _, m in ap.mode_requests] == [Px4.HOLD]
+        assert all(r.msg.vx == r.msg.yaw_rate == 0 for r in ap.setpoints(stop + 0.05))
+        assert ap.setpoints(held + 0.2) == []  # in Hold: the stream has ended
+        print(f"STOP_TRACKING to Hold: {held - stop:.3f} s")
+
+
+@pytest.mark.parametrize("end", ["refused", "service stops"])
+def test_px4_offboard_end_without_failsafe(end: str) -> None:
+    """A PX4 that refuses Hold keeps getting zeros in OFFBOARD (it holds there, no failsafe); a service that
+    stops (SIGTERM) in OFFBOARD asks for Hold on its way out."""
+    with Rig(follow=FollowConfig(limits=LIMITS), autopilot=lambda url, **kw: Px4(url, **kw)) as rig:
+        ap = rig.ap
+        assert rig.connected()
+        rig.start_tracking((0.7, 0.4, 0.8, 0.55))
+        ap.set_mode(True, Px4.POSCTL)
+        assert wait_until(lambda: len(ap.setpoints()) >= 3, 3)
+        assert ap.request_offboard()
+        assert ap.wait_for("SET_POSITION_TARGET_LOCAL_NED", 3, time.monotonic(), where=lambda m: m.yaw_rate > 0)
+        if end == "refused":
+            ap.refuse_modes = True
+            stop = time.monotonic()
+            assert rig.gcs.call(2010).result == 0
+            time.sleep(3.0)
+            assert ap.failsafes == 0 and ap.custom_mode == Px4.OFFBOARD and rig.service.follower.state == "handover"
+            assert len(ap.mode_requests) >= 5  # asked every 0.5 s
+            zeros = ap.setpoints(stop + 0.05)
+            assert all(r.msg.vx == r.msg.yaw_rate == 0 for r in zeros) and rate([r.at for r in zeros]) > 13
+            ap.set_mode(True, Px4.POSCTL)  # the pilot takes over: the stream ends
+            assert wait_until(lambda: rig.service.follower.state == "off", 2)
+            return
+    # the service stopped (the Rig's exit): zero and Hold went out on shutdown
+    time.sleep(ap.loss_timeout + 0.5)
+    assert [m for _, m in ap.mode_requests] == [Px4.HOLD] and ap.custom_mode == Px4.HOLD and ap.failsafes == 0
