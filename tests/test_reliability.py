@@ -577,3 +577,17 @@ def test_hp_overflow_would_reach_the_crop() -> None:
         from dadiff.runtime.crop import crop_side
 
         crop_side(100.0 * params.search_growth * params.search_growth)
+
+
+def test_readmes_csrt_environment_does_not_break_ruff(tmp_path) -> None:
+    """Issue 55: README's CSRT recipe makes `csrt-env/` inside the checkout; `ruff check .` then reported 355
+    errors in the packages installed there and the test command stopped."""
+    pytest.importorskip("ruff")
+    root = Path(__file__).resolve().parent.parent
+    (tmp_path / "pyproject.toml").write_text((root / "pyproject.toml").read_text())
+    (tmp_path / "csrt-env" / "lib").mkdir(parents=True)
+    (tmp_path / "csrt-env" / "lib" / "installed.py").write_text("import os, sys\nx=1;y = 2\n")
+    proc = subprocess.run([sys.executable, "-m", "ruff", "check", "."], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout
+    assert "/csrt-env/" in (root / ".gitignore").read_text().splitlines()
