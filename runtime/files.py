@@ -33,22 +33,21 @@ class RowFile:
         self._raw = open(self.path, mode + "b", buffering=0)  # noqa: SIM115 - closed in close()
         self._raw.seek(0, os.SEEK_END)
         self.size = self._raw.tell()  # bytes of whole lines on disk
-        self.rows = 0
 
     @property
     def closed(self) -> bool:
         return self._raw.closed
 
     def write(self, text: str) -> int:
-        data = memoryview(text.encode())
+        encoded = text.encode()
+        data = memoryview(encoded)
         try:
             while data:
                 data = data[self._raw.write(data) or 0:]
         except OSError as exc:
             self._cut()
             raise named(exc, self.path) from None
-        self.size += len(text.encode())
-        self.rows += 1
+        self.size += len(encoded)
         return len(text)
 
     def _cut(self) -> None:
