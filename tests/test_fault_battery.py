@@ -513,7 +513,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 def _command(prog: str, argv: list[str], **kwargs: Any) -> subprocess.Popen:
     """`prog` started as its console script starts it (runtime/launch.py), in a child process."""
     module, function = ENTRY_POINTS[prog].split(":")
-    code = f"from {module} import {function} as entry; entry()"  # what the installed console script runs
+    code = f"import sys; from {module} import {function} as entry; sys.exit(entry())"  # as the console script
     env = {**os.environ, **kwargs.pop("env", {})}
     return subprocess.Popen([sys.executable, "-c", code, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env, **kwargs)
