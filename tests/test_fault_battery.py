@@ -590,14 +590,17 @@ def test_full_disk_leaves_outputs_whole_or_removed(tmp_path) -> None:
         ("dadiff-run", [*run, "--output", str(out / "log.jsonl")], out / "log.jsonl"),
         ("dadiff-run", [*run, "--save-video", str(out / "track.mp4")], out / "track.mp4"),
         *([("dadiff-run", ["--demo", "--demo-out", str(out / "demo"), "--model", str(model)],
-            out / "demo" / "demo-night-0.mp4")] if importlib.util.find_spec("skimage") else []),  # dadiff[eval]
+            out / "demo" / "demo-night-0.mp4"),  # the generator needs dadiff[eval] (scikit-image)
+           ("dadiff-bench", [str(model), "--clip", "20", "--frames", "5", "--warmup", "0", "--no-nano"],
+            out / "bench-tmp")] if importlib.util.find_spec("skimage") else []),  # its clip goes to TMPDIR
         ("dadiff-eval", ["run", "--dataset", str(dataset), "--results", str(out / "results"), "--model", str(model),
                          "--no-progress", "--no-plots"], out / "results"),
     ]
     failures, tally = [], {"cases": len(cases), "exit_nonzero": 0, "one_line_naming_the_file": 0,
                            "damaged_files_left": 0}
+    (out / "bench-tmp").mkdir()
     for prog, argv, path in cases:
-        proc = _command(prog, argv, preexec_fn=_small_disk)
+        proc = _command(prog, argv, preexec_fn=_small_disk, env={"TMPDIR": str(out / "bench-tmp")})
         _, err = proc.communicate(timeout=120)
         tally["exit_nonzero"] += proc.returncode != 0
         tally["one_line_naming_the_file"] += _one_error_naming(err, prog, path)
@@ -605,6 +608,8 @@ def test_full_disk_leaves_outputs_whole_or_removed(tmp_path) -> None:
             damaged = _whole_rows(path) < 0
         elif path.suffix == ".mp4":
             damaged = path.exists() and _video_frames(path) == 0
+        elif path.name == "bench-tmp":  # dadiff-bench's clip, in a temporary folder that must be gone
+            damaged = any(path.glob("dadiff-bench-*"))
         else:  # eval's results: written whole through a temporary file, which must not stay behind
             damaged = any(p.name.endswith(".tmp") for p in path.rglob("*"))
         tally["damaged_files_left"] += damaged
