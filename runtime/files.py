@@ -44,9 +44,11 @@ class RowFile:
         try:
             while data:
                 data = data[self._raw.write(data) or 0:]
-        except OSError as exc:
+        except BaseException as exc:  # a signal between two partial writes too
             self._cut()
-            raise named(exc, self.path) from None
+            if isinstance(exc, OSError):
+                raise named(exc, self.path) from None
+            raise
         self.size += len(encoded)
         return len(text)
 
