@@ -410,7 +410,8 @@ def _run(args: argparse.Namespace, video: str) -> int:
 
 
 def _run_with_signals(service: Any) -> int:
-    """SIGTERM stops cleanly (exit 0), Ctrl-C too (exit 130); handlers only in the main thread."""
+    """SIGTERM stops cleanly (exit 0), Ctrl-C and SIGHUP (a dropped SSH session) too (exit 130); handlers only
+    in the main thread; a signal the process was started ignoring (nohup's SIGHUP) stays ignored."""
     if threading.current_thread() is not threading.main_thread():
         return service.run()
     caught: list[int] = []
@@ -421,13 +422,14 @@ def _run_with_signals(service: Any) -> int:
         if first:  # a second signal inside the first one's Event.set() deadlocked on its lock
             service.stop()
 
-    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+                if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
         rc = service.run()
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return 130 if signal.SIGINT in caught and rc == 0 else rc
+    return 130 if {signal.SIGINT, signal.SIGHUP} & set(caught) and rc == 0 else rc
 
 
 def main(argv: Sequence[str] | None = None) -> int:

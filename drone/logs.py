@@ -11,6 +11,9 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+from dadiff.runtime.files import RowFile
 
 LOGGER = "dadiff"
 
@@ -50,10 +53,53 @@ def log_handlers(file: Path | None = None, max_bytes: int = 10_000_000, backups:
     out.setFormatter(logging.Formatter(plain if os.environ.get("JOURNAL_STREAM") else stamped))
     handlers: list[logging.Handler] = [out]
     if file is not None:
-        rotating = logging.handlers.RotatingFileHandler(file, maxBytes=max_bytes, backupCount=backups)
+        rotating = LogFileHandler(file, maxBytes=max_bytes, backupCount=backups)
         rotating.setFormatter(logging.Formatter(stamped))
         handlers.append(rotating)
     return handlers
+
+
+class LogFileHandler(logging.handlers.RotatingFileHandler):
+    """The rotating log file, written through RowFile (a failed write leaves the file ending at its last
+    whole line), that reports a write failure once instead of a `--- Logging error ---` traceback per record.
+
+    On a full disk every record printed a traceback on stderr (312 lines in 8 s) and the log was lost without
+    a word. Now: one warning line naming the file when writes start failing; the records still go to stdout
+    (journald); each later record tries the file again, and the first that gets through is preceded in the
+    file by a line saying how many records it missed.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.missed = 0
+
+    def _open(self) -> RowFile:  # type: ignore[override]
+        return RowFile(self.baseFilename, "a")
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            if self.missed:
+                if self.stream is None:
+                    self.stream = self._open()
+                note = logging.LogRecord(record.name, logging.WARNING, __file__, 0, f"{self.missed} log records "
+                                         "are missing here: the file could not be written", None, None)
+                self.stream.write(self.format(note) + "\n")
+                self.missed = 0
+            if self.shouldRollover(record):
+                self.doRollover()
+            logging.FileHandler.emit(self, record)
+        except OSError as exc:
+            if not self.missed:
+                print(f"dadiff-run: warning: {self.baseFilename}: cannot write the log ({exc.strerror or exc}); "
+                      "records go to stdout only until it can be written again", file=sys.stderr, flush=True)
+            self.missed += 1
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        """FileHandler.emit hands its OSError here: raise it to `emit`, which reports it once."""
+        exc = sys.exc_info()[1]
+        if isinstance(exc, OSError):
+            raise exc
+        super().handleError(record)
 
 
 class Throttle:

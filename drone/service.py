@@ -136,8 +136,9 @@ class Service:
             for sink in self.sinks:
                 try:
                     sink.close()
-                except Exception as exc:
+                except Exception as exc:  # an output not written whole: exit 1, not 0
                     log.error("cannot close %s: %s", type(sink).__name__, exc)
+                    self._failed[f"close {type(sink).__name__}"] = exc
             log.info("service stopped: %s", self.summary())
         return 1 if self._failed else 0
 

@@ -55,7 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("checkpoint", help="released DaDiff-BAN checkpoint (.pth) or a dadiff checkpoint (.pt); with "
                                       "--quantize also an fp32 model folder or shipped model name")
     p.add_argument("-o", "--output", help="output model folder (default: ./<name>; ./<name>-int8 with --quantize)")
-    p.add_argument("--name", help="model name stored in the metadata (default: the checkpoint's file stem)")
+    p.add_argument("--name", help="model name stored in the metadata (default: the -o folder's name, else the "
+                                  "checkpoint's file stem)")
+    p.add_argument("--force", action="store_true",
+                   help="replace the graphs of a model already in the -o folder (refused without it)")
     p.add_argument("--steps", type=int, help="DDIM steps K to unroll, 1..20 (default: the checkpoint's, 2)")
     p.add_argument("--search-size", type=int_in(1), metavar="PX",
                    help="search crop side the graphs take, the trained size or smaller by a multiple of twice the "
@@ -151,21 +154,40 @@ def _user_errors() -> tuple[type[Exception], ...]:
 def _main(args: argparse.Namespace) -> int:
     if args.quantize is None:
         _refuse_quantize_options(args)
-        name = args.name or Path(args.checkpoint).stem
-        return _export(args, Path(args.output) if args.output else Path(name), name)
+        name = args.name or _folder_name(args.output) or Path(args.checkpoint).stem
+        out = Path(args.output) if args.output else Path(name)
+        _refuse_replacing(out, args.force)
+        return _export(args, out, name)
     settings = quantize_settings(args)
     folder = model_folder(args.checkpoint)
     if folder is not None:
         _refuse_checkpoint_options(args)
         out = Path(args.output) if args.output else Path(f"{folder.name}-int8")
+        _refuse_replacing(out, args.force)
         print(f"{PROG}: {args.checkpoint}: fp32 model folder, quantising its search graph to int8", flush=True)
         return _quantize(folder, out, settings)
     _refuse_folder(args.checkpoint)
     name = args.name or Path(args.checkpoint).stem
     out = Path(args.output) if args.output else Path(f"{name}-int8")
+    _refuse_replacing(out, args.force)
     with tempfile.TemporaryDirectory(prefix="dadiff-export-") as tmp:
         code = _export(args, Path(tmp) / name, name, label="fp32 model (temporary)")
         return code or _quantize(Path(tmp) / name, out, settings)
+
+
+def _folder_name(output: str | None) -> str:
+    """The name of the -o folder ('' without one): exporting models/dadiff-mobile/checkpoint.pt into its own
+    folder named the model `checkpoint`."""
+    return Path(output).expanduser().resolve().name if output else ""
+
+
+def _refuse_replacing(out: Path, force: bool) -> None:
+    """UserError when `out` already holds a model and --force is not given: its graphs were replaced without
+    a word. Checked before the checkpoint is loaded."""
+    held = [f for f in ("template.onnx", "search.onnx") if (out / f).exists()]
+    if held and not force:
+        raise UserError(f"{out}: holds a model already ({', '.join(held)}); add --force to replace it, or choose "
+                        "another -o")
 
 
 def _fail(message: str, code: int = 2) -> int:

@@ -45,7 +45,7 @@ def write_night_video(folder: Path, seed: int = 0, frames: int = 300) -> NightVi
     writer = open_mp4(path, (width, height))
     for frame in sequence.night:
         writer.write(frame)
-    writer.release()
+    writer.close()
     return NightVideo(path, sequence.name, protocol_box(sequence.boxes[0]), frames)
 
 

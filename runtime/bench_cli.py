@@ -61,6 +61,8 @@ from .evaluation.evaluate import (
 from .evaluation.scene_error import SceneError
 from .instructions import CLIP, UPDATES, InstructionCountError, count_updates, valgrind_path, write_clip
 from .onnx_backend import physical_cores, thread_count
+from .outputs import OutputError
+from .sources import quiet_opencv
 from .tracker import Tracker
 
 ROWS = (
@@ -431,9 +433,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("dadiff-bench: error: --checkpoint applies to --compare-torch and --sweep-steps only", file=sys.stderr)
         return 2
     try:
-        report = run(args)
-    except (BenchError, ModelError, InputError, OSError, SceneError, DatasetError, EvalError,
-            InstructionCountError) as exc:
+        with quiet_opencv():  # FFmpeg's own lines (`moov atom not found`) stay off stderr, as in every command
+            report = run(args)
+    except (BenchError, ModelError, InputError, OSError, OutputError, SceneError, DatasetError, EvalError,
+            InstructionCountError) as exc:  # OutputError: the clip's video could not be written whole
         line = os_error_line(exc) if isinstance(exc, OSError) else exc
         print(f"dadiff-bench: error: {line}", file=sys.stderr)  # SceneError: e.g. scikit-image missing
         return 2

@@ -2,18 +2,15 @@
 
 User errors (bad model, unreadable video, bad init box, bad option) print one line
 `dadiff-run: error: ...` on stderr and exit with code 2. Ctrl-C (or SIGTERM) stops cleanly: every output
-is flushed and closed and the summary is printed (exit code 130).
+is flushed and closed and the summary is printed (exit code 130); so does SIGHUP (an SSH session dropping).
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 import time
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
 from pathlib import Path
 
 from tqdm import tqdm
@@ -23,6 +20,7 @@ from .config import TUNABLE_KEYS
 from .cpu import int8_warning
 from .crop import protocol_box
 from .errors import InputError, ModelError, os_error_line
+from .launch import stop_signals_interrupt
 from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
 from .runstats import RunStats
 from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
@@ -150,23 +148,6 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
-@contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """Let SIGTERM stop the run like Ctrl-C (service managers send it); no-op outside the main thread."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def _raise(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, _raise)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def _open_sinks(args: argparse.Namespace, fps: float | None) -> list[Sink]:
     sinks: list[Sink] = []
     try:
@@ -195,6 +176,7 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
     warn_int8(tracker)
     source = open_source(args.video)
     sinks: list[Sink] = []
+    failed: OutputError | None = None
     try:
         box = args.init or source.init_box
         if box is None:
@@ -211,11 +193,16 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
         stats.begin()
         stats.add("init")
         return _loop(tracker, source, frames, sinks, args.max_frames, stats)
+    except OutputError as exc:
+        failed = exc
+        raise
     finally:
         stats.skipped = source.skipped
-        _close_all(sinks)
-        source.close()
-        _warn_missing(source)
+        try:
+            _close_all(sinks, failed)
+        finally:
+            source.close()
+            _warn_missing(source)
 
 
 def warn_int8(tracker: Tracker) -> None:
@@ -232,16 +219,17 @@ def _warn_missing(source: VideoSource | FolderSource) -> None:
               f"{source.length} (truncated or damaged file); they are counted as skipped", file=sys.stderr)
 
 
-def _close_all(sinks: Sequence[Sink]) -> None:
-    """Close every sink even when one fails; the first failure is raised after all are closed."""
-    failure: OutputError | None = None
+def _close_all(sinks: Sequence[Sink], failed: OutputError | None = None) -> None:
+    """Close every sink even when one fails; after all are closed, one OutputError tells every output that
+    could not be written whole (`failed`: the one that stopped the run, if any)."""
+    failures = [failed] if failed is not None else []
     for sink in sinks:
         try:
             sink.close()
         except OutputError as exc:
-            failure = failure or exc
-    if failure is not None:
-        raise failure
+            failures.append(exc)
+    if len(failures) > (failed is not None):
+        raise OutputError("; ".join(map(str, failures)))
 
 
 def _loop(
@@ -320,7 +308,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return run_mavlink(args)
     if args.demo:
         try:
-            with _sigterm_as_interrupt(), quiet_opencv():
+            with stop_signals_interrupt(), quiet_opencv():
                 return _demo(args)
         except (ModelError, InputError, SourceError, OutputError, ValueError, ImportError) as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
@@ -337,7 +325,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     stats = RunStats()
     try:
-        with _sigterm_as_interrupt(), quiet_opencv():
+        with stop_signals_interrupt(), quiet_opencv():
             interrupted = _track(args, stats)
     except (ModelError, InputError, SourceError, OutputError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)

@@ -108,13 +108,16 @@ def _open(path: Path, threads: int, providers: list[str], cache: bool) -> ort.In
             return ort.InferenceSession(str(cached), session_options(threads, optimise=False), providers=providers)
         except Exception:  # a damaged cache entry: rebuild it from the model
             cached.unlink(missing_ok=True)
-    options = session_options(threads)
+    if cached is not None:
+        try:
+            with store_atomically(cached) as staging:
+                options = session_options(threads)
+                options.optimized_model_filepath = str(staging)
+                return ort.InferenceSession(str(path), sess_options=options, providers=providers)
+        except Exception:  # the cache could not be written (a full disk): load the model without it
+            pass
     try:
-        if cached is None:
-            return ort.InferenceSession(str(path), sess_options=options, providers=providers)
-        with store_atomically(cached) as staging:
-            options.optimized_model_filepath = str(staging)
-            return ort.InferenceSession(str(path), sess_options=options, providers=providers)
+        return ort.InferenceSession(str(path), sess_options=session_options(threads), providers=providers)
     except Exception as exc:  # onnxruntime raises several unrelated types for unreadable models
         raise ModelError(f"{path}: not a loadable ONNX model ({_first_line(exc)})") from None
 

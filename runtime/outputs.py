@@ -16,6 +16,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from .files import RowFile
 from .sources import Frame, folder_inputs
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")  # containers that take the mp4v stream
@@ -93,7 +94,8 @@ class Sink(Protocol):
 class TrackLog:
     """One row per frame: frame, timestamp, x, y, w, h, score, state; CSV or JSON Lines by file suffix.
 
-    Line-buffered so that a crash or power cut loses at most the current line.
+    Each row goes to the kernel as it is written (a crash or power cut loses at most the current row), and a
+    full disk or I/O error leaves the file ending at its last whole row (runtime/files.py).
     """
 
     def __init__(self, path: Path) -> None:
@@ -103,7 +105,7 @@ class TrackLog:
         self.path, self._jsonl = path, suffix == ".jsonl"
         self.rows, self._failed = 0, False
         try:
-            self._file = path.open("w", newline="" if not self._jsonl else None, buffering=1)
+            self._file = RowFile(path)
         except OSError as exc:
             raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
         self._csv = None if self._jsonl else csv.writer(self._file, lineterminator="\n")
@@ -111,8 +113,8 @@ class TrackLog:
             self._guarded(self._csv.writerow, LOG_FIELDS)
 
     def _guarded(self, write: Callable[[object], object], value: object) -> None:
-        """Write one line; a full disk or I/O error becomes one OutputError (rows before it are on disk),
-        and later writes are dropped without another error (the service keeps tracking)."""
+        """Write one line; a full disk or I/O error becomes one OutputError (the rows before it are on disk,
+        whole), and later writes are dropped without another error (the service keeps tracking)."""
         if self._failed:
             return
         try:
@@ -131,13 +133,7 @@ class TrackLog:
         self.rows += not self._failed
 
     def close(self) -> None:
-        """Close; after a failed write the unwritable buffer is dropped quietly (the error was reported)."""
-        try:
-            self._file.close()
-        except OSError as exc:
-            if not self._failed:
-                self._failed = True
-                raise _write_error(self.path, exc, self.rows) from None
+        self._file.close()
 
 
 def draw_overlay(image: np.ndarray, record: Record) -> np.ndarray:
@@ -158,12 +154,61 @@ def draw_overlay(image: np.ndarray, record: Record) -> np.ndarray:
     return image
 
 
-def open_mp4(path: Path, size: tuple[int, int], fps: float = 30.0) -> cv2.VideoWriter:
+class Mp4Writer:
+    """An mp4v video writer that knows whether its file came out whole.
+
+    OpenCV reports no write error: on a full disk it wrote frames into nothing and then failed to write the
+    index (the `moov` atom, written last), leaving a file no player opens, and the run ended with exit 0.
+    `close` opens the written file again and counts its frames; a file that does not hold every frame is
+    removed and OutputError names it. Frames are finalised on every ending the process sees (the commands
+    turn SIGINT, SIGTERM and SIGHUP into KeyboardInterrupt, so `close` runs: runtime/launch.py).
+    """
+
+    def __init__(self, path: Path, size: tuple[int, int], fps: float = 30.0) -> None:
+        self.path, self.frames = path, 0
+        self._writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        if not self._writer.isOpened():
+            raise OSError(f"{path}: cannot write video (mp4v)")
+
+    def write(self, image: np.ndarray) -> None:
+        self._writer.write(image)
+        self.frames += 1
+
+    def close(self) -> None:
+        """Finish the file, then check it; OutputError (the file removed) when it does not hold every frame."""
+        if self._writer is None:
+            return
+        self._writer.release()
+        self._writer = None
+        found = _frames_in(self.path)
+        if found == self.frames:
+            return
+        reason = "no space left on device" if _disk_full(self.path.parent) else "the file came out incomplete"
+        self.path.unlink(missing_ok=True)
+        raise OutputError(f"{self.path}: cannot write video ({reason}: {found} of {self.frames} frames readable); "
+                          "the unplayable file was removed")
+
+
+
+def _frames_in(path: Path) -> int:
+    """How many frames the container of `path` says it holds (0 when it does not open)."""
+    capture = cv2.VideoCapture(str(path))
+    try:
+        return int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
+    finally:
+        capture.release()
+
+
+def _disk_full(folder: Path) -> bool:
+    try:
+        return os.statvfs(folder).f_bavail == 0
+    except OSError:
+        return False
+
+
+def open_mp4(path: Path, size: tuple[int, int], fps: float = 30.0) -> Mp4Writer:
     """An mp4v writer for frames of `size` (width, height); OSError naming the file when it cannot open."""
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-    if not writer.isOpened():
-        raise OSError(f"{path}: cannot write video (mp4v)")
-    return writer
+    return Mp4Writer(path, size, fps)
 
 
 class VideoSink:
@@ -175,7 +220,7 @@ class VideoSink:
         if not path.parent.is_dir():
             raise OutputError(f"{path}: folder {path.parent} does not exist")
         self.path, self.fps = path, fps or 30.0
-        self._writer: cv2.VideoWriter | None = None
+        self._writer: Mp4Writer | None = None
         self._size: tuple[int, int] | None = None
 
     def write(self, frame: Frame, record: Record) -> None:
@@ -192,4 +237,4 @@ class VideoSink:
 
     def close(self) -> None:
         if self._writer is not None:
-            self._writer.release()
+            self._writer.close()

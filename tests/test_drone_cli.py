@@ -5,6 +5,7 @@ codes, one-line errors, and a run where torch, onnx and dadiff.export cannot be 
 from __future__ import annotations
 
 import csv
+import signal
 import subprocess
 import sys
 import textwrap
@@ -176,8 +177,10 @@ def test_drone_runs_without_torch_onnx_or_export(media: dict[str, Path]) -> None
     assert "drone ok without torch/onnx/export" in proc.stdout
 
 
-def test_sigterm_stops_cleanly(media: dict[str, Path], tmp_path: Path) -> None:
-    """A live-looking run (a stream URL that never opens) under SIGTERM: exit 0, the log says stopped."""
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 0), (signal.SIGHUP, 130)], ids=["SIGTERM", "SIGHUP"])
+def test_sigterm_stops_cleanly(media: dict[str, Path], tmp_path: Path, sig: int, code: int) -> None:
+    """A live-looking run (a stream URL that never opens) under SIGTERM: exit 0, the log says stopped. SIGHUP
+    (the SSH session that started it dropping; it killed the service at once) stops it the same way, exit 130."""
     script = textwrap.dedent(
         """
         import sys
@@ -200,8 +203,8 @@ def test_sigterm_stops_cleanly(media: dict[str, Path], tmp_path: Path) -> None:
     reader.start()
     try:
         assert wait_until(lambda: any(b"service started" in line for line in lines), 30)
-        proc.terminate()
-        assert proc.wait(timeout=15) == 0
+        proc.send_signal(sig)
+        assert proc.wait(timeout=15) == code
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -139,6 +139,36 @@ def test_write_benchmark_is_read_back_as_an_otb_dataset(tmp_path):
         write_benchmark(root, sequences=1, frames=1, seed=5)
 
 
+def test_interrupted_write_benchmark_resumes_with_the_same_settings(tmp_path, monkeypatch):
+    """Issue 55: `dadiff-eval generate`, interrupted, said "run again to resume", and run again refused the
+    folder. The same settings now finish it (sequences already whole are kept); other settings are refused."""
+    from dadiff.runtime.evaluation import scenes
+
+    whole = write_benchmark(tmp_path / "whole", sequences=3, frames=2, seed=5, size=SMALL, workers=1)
+    real, written = scenes._write_sequence, []
+
+    def interrupted(job):
+        if len(written) == 2:
+            raise KeyboardInterrupt
+        written.append(job[1])
+        return real(job)
+
+    monkeypatch.setattr(scenes, "_write_sequence", interrupted)
+    root = tmp_path / "bench"
+    with pytest.raises(KeyboardInterrupt):
+        write_benchmark(root, sequences=3, frames=2, seed=5, size=SMALL, workers=1)
+    assert not (root / "benchmark.json").exists()
+    with pytest.raises(SceneError, match=r"interrupted generation with other settings \(frames\)"):
+        write_benchmark(root, sequences=3, frames=3, seed=5, size=SMALL, workers=1)
+    written.clear()
+    monkeypatch.setattr(scenes, "_write_sequence", lambda job: (written.append(job[1]), real(job))[1])
+    write_benchmark(root, sequences=3, frames=2, seed=5, size=SMALL, workers=1)
+    assert written == ["seq003"]  # the two finished sequences were kept
+    files = sorted(p.relative_to(root) for p in root.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(whole) for p in whole.rglob("*") if p.is_file())
+    assert all((root / f).read_bytes() == (whole / f).read_bytes() for f in files)
+
+
 # ---------------------------------------------------------------------------------- seeded benchmark
 
 # Recorded from the generator before the "real" night style and the library source existed: the seeded

@@ -135,3 +135,26 @@ def test_unknown_preset_is_one_line(tmp_path, capsys, lite_checkpoint):
     code, _, err = _run(capsys, str(lite_checkpoint), "-o", str(tmp_path / "x"), "--preset", "GEN_NIGHT")
     assert code == 2 and "unknown preset 'GEN_NIGHT'; known: NAT, NAT_L, NUT_L, UAVDark70" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_model_is_named_after_its_folder_and_not_replaced_without_force(tmp_path, capsys, lite_checkpoint):
+    """Issue 55: `-o FOLDER` holding a model was replaced without a word, and exporting a model's checkpoint.pt
+    into its own folder renamed the model `checkpoint`."""
+    checkpoint = tmp_path / "checkpoint.pt"
+    checkpoint.write_bytes(lite_checkpoint.read_bytes())
+    folder = tmp_path / "my-lite"
+
+    def name() -> str:
+        return {p.key: p.value for p in onnx.load(str(folder / "search.onnx")).metadata_props}["name"]
+
+    code, _, err = _run(capsys, str(checkpoint), "-o", str(folder))
+    assert code == 0, err
+    assert name() == "my-lite"
+    (folder / "checkpoint.pt").write_bytes(checkpoint.read_bytes())  # as the shipped folders hold theirs
+    before = (folder / "search.onnx").read_bytes()
+    code, out, err = _run(capsys, str(folder / "checkpoint.pt"), "-o", str(folder))
+    assert code == 2 and err.count("\n") == 1 and "holds a model already" in err and "--force" in err
+    assert (folder / "search.onnx").read_bytes() == before and not out
+    code, _, err = _run(capsys, str(folder / "checkpoint.pt"), "-o", str(folder), "--force")
+    assert code == 0, err
+    assert name() == "my-lite"

@@ -9,6 +9,9 @@
    MAVLink addresses that cannot work, inputs the user may not read; the same verdicts.
 3. Soak: the service over >= 10 000 frames while the camera and the link drop and come back every ~1 s:
    no row lost, flat memory, reconnect times measured.
+4. Endings (issue 55): every output onto a disk that fills (RLIMIT_FSIZE, so no mount is needed) is reported
+   with one line naming it and exit != 0, and left whole up to its last row or removed; SIGINT, SIGTERM and
+   SIGHUP mid-run finalise the MP4; and the same signals while a command still imports are one line, exit 130.
 
 Reproduce the figures: `DADIFF_BATTERY_REPORT=battery.json pytest -q tests/test_fault_battery.py`
 (they are printed with `-s` as well). Seeds are fixed: every run attacks with the same inputs.
@@ -16,14 +19,19 @@ Reproduce the figures: `DADIFF_BATTERY_REPORT=battery.json pytest -q tests/test_
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import logging
 import os
 import random
+import resource
+import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
+import tomllib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -351,9 +359,6 @@ def _run_driver(cases: list[dict[str, Any]], root: Path, timeout: float, prefix:
                 memory: int | None = None) -> list[dict[str, Any]]:
     """Run `cases` in one child (started through `prefix`, e.g. setpriv), its address space capped at `memory`
     bytes when given (an unbounded read then fails fast instead of filling the machine)."""
-    import resource
-    import subprocess
-
     def cap() -> None:
         if memory is not None:
             resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
@@ -622,6 +627,184 @@ def test_inputs_the_user_may_not_read_are_one_line(tmp_path) -> None:
         (seq / "img").chmod(0o755)
         config.chmod(0o644)
     FIGURES["unreadable"] = _judge(cases, results)
+
+# ------------------------------------------------------------------- 4. endings: a full disk and signals
+
+FULL_DISK_BYTES = 4096  # RLIMIT_FSIZE: a write past it fails part-way (EFBIG), as one onto a full disk does
+ENTRY_POINTS = tomllib.loads((HERE.parent / "pyproject.toml").read_text())["project"]["scripts"]  # prog -> mod:fn
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def _command(prog: str, argv: list[str], **kwargs: Any) -> subprocess.Popen:
+    """`prog` started as its console script starts it (runtime/launch.py), in a child process."""
+    module, function = ENTRY_POINTS[prog].split(":")
+    code = f"import sys; from {module} import {function} as entry; sys.exit(entry())"  # as the console script
+    env = {**os.environ, **kwargs.pop("env", {})}
+    return subprocess.Popen([sys.executable, "-c", code, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env, **kwargs)
+
+
+def _small_disk() -> None:
+    """In the child: every file it writes ends at FULL_DISK_BYTES (EFBIG instead of SIGXFSZ)."""
+    resource.setrlimit(resource.RLIMIT_FSIZE, (FULL_DISK_BYTES, FULL_DISK_BYTES))
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+
+def _long_video(path: Path, frames: int) -> Path:
+    import cv2
+
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (160, 120))
+    base = _frames(20)
+    for i in range(frames):
+        writer.write(base[i % 20])
+    writer.release()
+    return path
+
+
+def _video_frames(path: Path) -> int:
+    import cv2
+
+    capture = cv2.VideoCapture(str(path))
+    count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
+    capture.release()
+    return count
+
+
+def _whole_rows(path: Path) -> int:
+    """Rows of a track log, each checked whole (CSV: 8 fields; JSONL: one object); -1 for a cut one."""
+    if not path.exists():
+        return 0
+    text = path.read_text()
+    if text and not text.endswith("\n"):
+        return -1
+    lines = text.splitlines()
+    if path.suffix == ".csv":
+        return len(lines) - 1 if all(len(line.split(",")) == 8 for line in lines) else -1
+    try:
+        return sum(isinstance(json.loads(line), dict) for line in lines)
+    except ValueError:
+        return -1
+
+
+def _one_error_naming(stderr: str, prog: str, path: Path) -> bool:
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    return len(lines) == 1 and lines[0].startswith(f"{prog}: error: ") and str(path) in lines[0]
+
+
+def test_full_disk_leaves_outputs_whole_or_removed(tmp_path) -> None:
+    """Every output a command writes, onto a disk that fills: exit != 0, one line naming the file, and the file
+    valid up to its last whole row (track logs) or removed (videos; eval's result files, no `.tmp` left)."""
+    from runtime_models import write_corr_model
+
+    model = write_corr_model(tmp_path / "model")
+    video = _long_video(tmp_path / "clip.mp4", 200)
+    dataset = tmp_path / "bench"
+    seq = dataset / "seq001"
+    (seq / "img").mkdir(parents=True)
+    for k in range(300):
+        (seq / "img" / f"{k + 1:04d}.png").symlink_to(tmp_path / "frame.png")
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "frame.png"), _frames(1)[0])
+    (seq / "groundtruth_rect.txt").write_text("40,40,20,15\n" * 300)
+    out = tmp_path / "out"
+    out.mkdir()
+    run = ["--video", str(video), "--init", BOX, "--model", str(model)]
+    cases = [
+        ("dadiff-run", [*run, "--output", str(out / "log.csv")], out / "log.csv"),
+        ("dadiff-run", [*run, "--output", str(out / "log.jsonl")], out / "log.jsonl"),
+        ("dadiff-run", [*run, "--save-video", str(out / "track.mp4")], out / "track.mp4"),
+        *([("dadiff-run", ["--demo", "--demo-out", str(out / "demo"), "--model", str(model)],
+            out / "demo" / "demo-night-0.mp4"),  # the generator needs dadiff[eval] (scikit-image)
+           ("dadiff-bench", [str(model), "--clip", "20", "--frames", "5", "--warmup", "0", "--no-nano"],
+            out / "bench-tmp")] if importlib.util.find_spec("skimage") else []),  # its clip goes to TMPDIR
+        ("dadiff-eval", ["run", "--dataset", str(dataset), "--results", str(out / "results"), "--model", str(model),
+                         "--no-progress", "--no-plots"], out / "results"),
+    ]
+    failures, tally = [], {"cases": len(cases), "exit_nonzero": 0, "one_line_naming_the_file": 0,
+                           "damaged_files_left": 0}
+    (out / "bench-tmp").mkdir()
+    for prog, argv, path in cases:
+        proc = _command(prog, argv, preexec_fn=_small_disk, env={"TMPDIR": str(out / "bench-tmp")})
+        _, err = proc.communicate(timeout=120)
+        tally["exit_nonzero"] += proc.returncode != 0
+        tally["one_line_naming_the_file"] += _one_error_naming(err, prog, path)
+        if path.suffix in (".csv", ".jsonl"):
+            damaged = _whole_rows(path) < 0
+        elif path.suffix == ".mp4":
+            damaged = path.exists() and _video_frames(path) == 0
+        elif path.name == "bench-tmp":  # dadiff-bench's clip, in a temporary folder that must be gone
+            damaged = any(path.glob("dadiff-bench-*"))
+        else:  # eval's results: written whole through a temporary file, which must not stay behind
+            damaged = any(p.name.endswith(".tmp") for p in path.rglob("*"))
+        tally["damaged_files_left"] += damaged
+        if proc.returncode == 0 or damaged or not _one_error_naming(err, prog, path):
+            failures.append(f"{prog} {' '.join(argv)}: exit {proc.returncode}, damaged {damaged}, stderr {err!r}")
+    FIGURES["full_disk"] = tally
+    assert not failures, "\n".join(failures)
+
+
+def test_full_disk_on_the_log_file_is_one_warning_not_a_traceback_per_record(tmp_path, capfd) -> None:
+    """The service's --log-file on a full disk (/dev/full): one warning naming it, not 50 tracebacks."""
+    from dadiff.drone.logs import log_handlers, service_logging
+
+    records = 50
+    with service_logging("INFO", log_handlers(Path("/dev/full"))) as logger:
+        for i in range(records):
+            logger.info("record %d", i)
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    FIGURES["full_disk_log"] = {"records": records, "stderr_lines": len(lines)}
+    assert len(lines) == 1 and "/dev/full: cannot write the log (No space left on device)" in lines[0], lines
+
+
+@pytest.mark.parametrize("sig", STOP_SIGNALS, ids=lambda s: signal.Signals(s).name)
+def test_signal_mid_run_finalises_the_video_and_prints_the_summary(tmp_path, sig) -> None:
+    """SIGINT, SIGTERM and SIGHUP (an SSH session dropping) during `dadiff-run --save-video --output`: exit 130,
+    the summary, a CSV of whole rows and an MP4 that holds one frame per row."""
+    from runtime_models import write_corr_model
+
+    model = write_corr_model(tmp_path / "model")
+    video = _long_video(tmp_path / "clip.mp4", 1500)
+    log, mp4 = tmp_path / "log.csv", tmp_path / "track.mp4"
+    proc = _command("dadiff-run", ["--video", str(video), "--init", BOX, "--model", str(model), "--output", str(log),
+                                   "--save-video", str(mp4)])
+    assert wait_until(lambda: log.exists() and log.stat().st_size > 2000, 60)
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=60)
+    rows = _whole_rows(log)
+    FIGURES.setdefault("signals_mid_run", {})[signal.Signals(sig).name] = {
+        "exit": proc.returncode, "rows": rows, "video_frames": _video_frames(mp4)}
+    assert proc.returncode == 130, err
+    assert "dadiff-run: interrupted" not in err and "frames," in out  # the summary, not the early-exit line
+    assert 0 < rows < 1500 and _video_frames(mp4) == rows
+
+
+def test_signal_while_a_command_imports_is_one_line(tmp_path) -> None:
+    """Ctrl-C, SIGTERM or SIGHUP before a command's `main` runs (while OpenCV or torch import: seconds on a
+    small computer): one `<command>: interrupted` line and exit 130, never a traceback or death by signal."""
+    slow = tmp_path / "slow"
+    for module in ("cv2", "torch"):  # the first heavy import of every command, held until the signal comes
+        (slow / module).mkdir(parents=True)
+        (slow / module / "__init__.py").write_text(
+            "import os, time\n"
+            f"open(os.path.join({str(tmp_path)!r}, 'importing'), 'w').close()\n"
+            "time.sleep(60)\n")
+    env = {"PYTHONPATH": os.pathsep.join([str(slow), os.environ.get("PYTHONPATH", "")])}
+    failures, tried = [], 0
+    for prog in ENTRY_POINTS:
+        for sig in STOP_SIGNALS:
+            (tmp_path / "importing").unlink(missing_ok=True)
+            argv = {"dadiff-run": ["--video", "x.mp4"], "dadiff-train": ["--config", "x.toml"]}.get(prog, ["x"])
+            proc = _command(prog, argv, env=env)
+            assert wait_until(lambda: (tmp_path / "importing").exists(), 30), prog
+            proc.send_signal(sig)
+            _, err = proc.communicate(timeout=30)
+            tried += 1
+            if proc.returncode != 130 or err.strip() != f"{prog}: interrupted":
+                failures.append(f"{prog} {signal.Signals(sig).name}: exit {proc.returncode}, stderr {err[-300:]!r}")
+    FIGURES["signals_while_importing"] = {"cases": tried, "failures": len(failures)}
+    assert not failures, "\n".join(failures)
 
 
 # ---------------------------------------------------------------------------------------------- 3. soak

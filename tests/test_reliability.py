@@ -577,3 +577,51 @@ def test_hp_overflow_would_reach_the_crop() -> None:
         from dadiff.runtime.crop import crop_side
 
         crop_side(100.0 * params.search_growth * params.search_growth)
+
+
+def test_readmes_csrt_environment_does_not_break_ruff(tmp_path) -> None:
+    """Issue 55: README's CSRT recipe makes `csrt-env/` inside the checkout; `ruff check .` then reported 355
+    errors in the packages installed there and the test command stopped."""
+    pytest.importorskip("ruff")
+    root = Path(__file__).resolve().parent.parent
+    (tmp_path / "pyproject.toml").write_text((root / "pyproject.toml").read_text())
+    (tmp_path / "csrt-env" / "lib").mkdir(parents=True)
+    (tmp_path / "csrt-env" / "lib" / "installed.py").write_text("import os, sys\nx=1;y = 2\n")
+    proc = subprocess.run([sys.executable, "-m", "ruff", "check", "."], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout
+    assert "/csrt-env/" in (root / ".gitignore").read_text().splitlines()
+
+
+class _HalfThenFull:
+    """A raw file whose next write stores 3 bytes, then every write fails as on a full disk."""
+
+    def __init__(self, raw) -> None:
+        self.raw, self.writes = raw, 0
+
+    def write(self, data) -> int:
+        self.writes += 1
+        if self.writes == 1:
+            return self.raw.write(bytes(data[:3]))
+        raise OSError(28, "No space left on device")
+
+    def __getattr__(self, name: str):
+        return getattr(self.raw, name)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".jsonl"])
+def test_track_log_cut_short_ends_at_its_last_whole_row(tmp_path, suffix) -> None:
+    """Issue 55: a full disk mid-row left `…,0.98616` (CSV) or half an object (JSONL) at the end of the log."""
+    from dadiff.runtime.outputs import Record
+
+    path = tmp_path / f"t{suffix}"
+    log = TrackLog(path)
+    frame = Frame(0, 0.0, np.zeros((4, 4, 3), np.uint8))
+    log.write(frame, Record((1, 2, 3, 4), 0.98616, "tracking"))
+    log._file._raw = _HalfThenFull(log._file._raw)
+    with pytest.raises(OutputError, match=rf"{path}: cannot write \(No space left on device\); the first 1 rows"):
+        log.write(frame, Record((5, 6, 7, 8), 0.5, "uncertain"))
+    log.close()
+    text = path.read_text()
+    assert text.endswith("\n") and text.count("\n") == (2 if suffix == ".csv" else 1)
+    assert "uncertain" not in text

@@ -40,3 +40,23 @@ def test_default_checkpoint_reproduces_the_shipped_graphs() -> None:
     cls, loc = onnx_side.search(x, onnx_side.template(z))
     assert np.abs(cls - ref_cls).max() < 1e-4
     assert np.abs(loc - ref_loc).max() / max(1.0, np.abs(ref_loc).max()) < 1e-4
+
+
+@pytest.mark.parametrize("folder", _shipped(), ids=lambda p: p.name)
+def test_source_sha256_names_the_file_exported_and_the_model_card_says_which(folder) -> None:
+    """Issue 55: dadiff-mobile's graphs carry source_sha256 0bc3db2d..., not the hash of the checkpoint.pt
+    beside them (0e74aaf0...). The graphs were exported from the training run's averaged checkpoint in
+    export/resume/, and checkpoint.pt is that file set to the 223 px crop (another file, so another hash):
+    the model card names the file each hash belongs to."""
+    import hashlib
+    from pathlib import Path
+
+    meta = {p.key: p.value for p in onnx.load(str(folder / "search.onnx")).metadata_props}
+    card = (folder / "MODEL_CARD.md").read_text()
+    assert meta["source_sha256"][:16] in card
+    checkpoint = hashlib.sha256((folder / "checkpoint.pt").read_bytes()).hexdigest()
+    assert checkpoint[:16] in card
+    if checkpoint != meta["source_sha256"]:  # the exported file is in the repository and named in the card
+        repo = Path(__file__).resolve().parent.parent
+        named = [p for p in (repo / "export" / "resume").glob("*.pt") if f"export/resume/{p.name}" in card]
+        assert [hashlib.sha256(p.read_bytes()).hexdigest() for p in named].count(meta["source_sha256"]) == 1

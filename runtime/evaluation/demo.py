@@ -70,7 +70,7 @@ def run_demo(model: str | None, out_dir: Path, seed: int = 0, *, frames: int = 1
             _caption(image, f"{sequence.name} night  frame {i + 1}/{len(sequence.night)}  white: ground truth")
             writer.write(image)
     finally:
-        writer.release()
+        writer.close()
     scores = summarise([SequenceCurves.from_boxes(sequence.boxes, boxes)])
     mean_fps = (len(boxes) - 1) / seconds if seconds > 0 else float("nan")
     print(

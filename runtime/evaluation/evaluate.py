@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from ..crop import protocol_box
 from ..errors import InputError
+from ..files import write_atomic
 from ..sources import read_image
 from ..user_files import read_user_text
 from .datasets import Dataset, DatasetError, load_dataset, plural, read_boxes
@@ -240,22 +241,14 @@ def tracker_folder(results: Path, dataset: str, tracker: str) -> Path:
     return Path(results) / dataset / tracker
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    """Write `text` through a temporary file renamed over `path`: never a truncated file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def write_result(path: Path, boxes: Iterable[Sequence[float]]) -> None:
     """Write `x,y,w,h` lines atomically."""
-    _write_atomic(path, "".join(",".join(_number(v) for v in box) + "\n" for box in boxes))
+    write_atomic(path, "".join(",".join(_number(v) for v in box) + "\n" for box in boxes))
 
 
 def write_states(path: Path, states: Iterable[tuple[float, str]]) -> None:
     """Write `score,state` lines atomically."""
-    _write_atomic(path, "".join(f"{_number(score)},{state}\n" for score, state in states))
+    write_atomic(path, "".join(f"{_number(score)},{state}\n" for score, state in states))
 
 
 def _number(value: float) -> str:
@@ -387,7 +380,7 @@ def claim_folder(folder: Path, record: dict) -> str | None:
     if has_results:
         return (f"{folder} has results but no {RUN_RECORD} (written by an older dadiff-eval): their settings "
                 f"cannot be checked against this run's; resuming")
-    _write_atomic(path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+    write_atomic(path, json.dumps(record, indent=1, sort_keys=True) + "\n")
     return None
 
 

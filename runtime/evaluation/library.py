@@ -37,6 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..files import write_atomic
 from .rcc import RccArchive, RccEntry, RccError, zstd_available
 
 FORMAT = 1
@@ -427,9 +428,7 @@ def _prune(tree: Path, keep: set[Path]) -> None:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    tmp.replace(path)
+    write_atomic(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 def _write_index(cache: Path) -> dict[str, dict]:

@@ -14,6 +14,7 @@ import ctypes
 import json
 import multiprocessing
 import os
+import shutil
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..files import write_atomic
 from .library_scenes import library_images, open_scene_library, random_library_scene
 from .night import FrameLights, NightStyle, RealNight, check_night_style
 from .photos import check_split, load_photos
@@ -184,7 +186,36 @@ def _write_sequence(job: tuple) -> tuple[str, tuple[str, ...]]:
             write_frame(folders[kind] / "img", i, image)
     for folder in folders.values():
         write_boxes(folder / "groundtruth_rect.txt", scene.boxes)
+    write_atomic(root / UNFINISHED / f"{name}.json", json.dumps(list(scene.attributes)))  # last: marks it whole
     return name, scene.attributes
+
+
+UNFINISHED = ".unfinished"  # in a benchmark being written: settings.json, and <seq>.json per finished sequence
+
+
+def _resume_point(root: Path, info: dict) -> dict[str, tuple[str, ...]]:
+    """The finished sequences (name -> attributes) of an interrupted `write_benchmark` into `root` with the same
+    settings, {} for a new or empty `root`; SceneError for any other folder."""
+    if not root.exists() or (root.is_dir() and not any(root.iterdir())):
+        return {}
+    marker = root / UNFINISHED / "settings.json"
+    if not marker.is_file():
+        raise SceneError(f"{root}: exists and is not an empty folder; choose a new --out")
+    try:
+        earlier = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        earlier = None
+    if earlier != info:
+        differ = sorted(k for k in {*info, *(earlier or {})} if (earlier or {}).get(k) != info.get(k))
+        raise SceneError(f"{root}: holds an interrupted generation with other settings ({', '.join(differ)}); "
+                         "run it with the same options to finish it, or choose a new --out")
+    done = {}
+    for path in (root / UNFINISHED).glob("seq*.json"):
+        try:
+            done[path.stem] = tuple(json.loads(path.read_text()))
+        except (OSError, ValueError):
+            continue  # cut short: written again
+    return done
 
 
 def write_benchmark(
@@ -215,45 +246,42 @@ def write_benchmark(
     if int(seed) < 0:
         raise SceneError(f"seed must be >= 0, got {seed}")
     root = Path(root).expanduser()
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
-        raise SceneError(f"{root}: exists and is not an empty folder; choose a new --out")
+    info = {"generator": "dadiff.runtime.scenes", "seed": seed, "split": split, "source": source, "night": night,
+            "sequences": sequences, "frames": frames}
+    if gusts:
+        info["gusts"] = True
+    if getattr(library, "folder", None) is not None:  # a CutoutTargets: whose targets the scenes show
+        info["cutouts"] = str(Path(library.folder).resolve())
+    settings = {**info, "size": list(size)}
+    done = _resume_point(root, settings)
     if source == "library":  # fail early, before anything is written (the workers open their own)
         library_images(library or open_scene_library(), split)
     if source == "skimage":  # likewise: without scikit-image an empty --out folder was left behind
         load_photos(split)
     try:
-        root.mkdir(parents=True, exist_ok=True)
+        (root / UNFINISHED).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SceneError(f"{root}: cannot create ({exc.strerror or exc})") from None
-    workers = max(1, min(workers or os.cpu_count() or 1, sequences))
+    write_atomic(root / UNFINISHED / "settings.json", json.dumps(settings))
+    names = [f"seq{k + 1:03d}" for k in range(sequences)]
     jobs = [
-        (root, f"seq{k + 1:03d}", [int(seed), k], split, frames, tuple(size), source, night, library, gusts)
-        for k in range(sequences)
+        (root, name, [int(seed), k], split, frames, tuple(size), source, night, library, gusts)
+        for k, name in enumerate(names) if name not in done
     ]
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     if workers == 1:
         results = [_write_sequence(job) for job in jobs]
     else:
         spawn = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(workers, mp_context=spawn, initializer=_tune_worker) as pool:
             results = list(pool.map(_write_sequence, jobs))
+    attributes = done | dict(results)
     table: dict[str, list[str]] = {}
-    for name, attributes in results:
-        table[f"{name}_day"] = list(attributes)
-        table[f"{name}_night"] = [*attributes, "LAI"]
+    for name in names:
+        table[f"{name}_day"] = list(attributes[name])
+        table[f"{name}_night"] = [*attributes[name], "LAI"]
     lines = ",\n".join(f" {json.dumps(k)}: {json.dumps(v)}" for k, v in table.items())
-    (root / "attributes.json").write_text("{\n" + lines + "\n}\n")
-    info = {
-        "generator": "dadiff.runtime.scenes",
-        "seed": seed,
-        "split": split,
-        "source": source,
-        "night": night,
-        "sequences": sequences,
-        "frames": frames,
-    }
-    if gusts:
-        info["gusts"] = True
-    if getattr(library, "folder", None) is not None:  # a CutoutTargets: whose targets the scenes show
-        info["cutouts"] = str(Path(library.folder).resolve())
-    (root / "benchmark.json").write_text(json.dumps({**info, "size": list(size)}, indent=1) + "\n")
+    write_atomic(root / "attributes.json", "{\n" + lines + "\n}\n")
+    write_atomic(root / "benchmark.json", json.dumps(settings, indent=1) + "\n")
+    shutil.rmtree(root / UNFINISHED, ignore_errors=True)
     return root
