@@ -81,8 +81,11 @@ def _results(folder: Path, name: str, boxes: list, states: list[str]) -> None:
 
 def test_tracking_on_an_absent_frame_counts_as_off_and_unknown_frames_do_not_count(tmp_path, capsys):
     truth = _truth(tmp_path / "truth", {"w": _walker_clip()})
-    eval_main(["uncut", "--video", str(_video(tmp_path / "v")), "--truth", str(truth), "--out", str(tmp_path / "d")])
+    video = _video(tmp_path / "v")
+    eval_main(["uncut", "--video", str(video), "--truth", str(truth), "--out", str(tmp_path / "d")])
     dataset = load_dataset(tmp_path / "d")
+    both = _truth(tmp_path / "truth2", {"w": _walker_clip(), "z": (0, [BOX] * FRAMES, [0] * FRAMES)})
+    eval_main(["uncut", "--video", str(video), "--truth", str(both), "--out", str(tmp_path / "d2")])
     post = [60, 20, 8, 20]  # a static look-alike far from the person
     # on the person in view; on the post at the crossing (unknown: not counted) and after the person left
     _results(tmp_path / "r" / "honest", "w", [BOX] * 4 + [post] * 4, ["init"] + ["tracking"] * 3 + ["lost"] * 4)
@@ -97,9 +100,31 @@ def test_tracking_on_an_absent_frame_counts_as_off_and_unknown_frames_do_not_cou
     early = uncut_scores(dataset, tmp_path / "r" / "early")[0]
     assert early.tracking_off == pytest.approx(2 / 6) and early.tracking_absent == 0
     assert early.success == pytest.approx(PERFECT / 3) and early.precision == pytest.approx(1 / 3)
+    _results(tmp_path / "r2" / "chaser", "w", [BOX] * 4 + [post] * 4, ["init"] + ["tracking"] * 7)
+    _results(tmp_path / "r2" / "chaser", "z", [BOX] * FRAMES, ["init"] + ["tracking"] * (FRAMES - 1))
+    two = load_dataset(tmp_path / "d2")
+    rows = {r.clip: r for r in uncut_scores(two, tmp_path / "r2" / "chaser")}
+    assert rows["all"].tracking_off == pytest.approx(3 / (6 + FRAMES - 1))  # pooled over frames
+    assert rows["mean"].tracking_off == pytest.approx((3 / 6 + 0) / 2)  # each clip counts once
     assert eval_main(["uncut-score", "--dataset", str(tmp_path / "d"), str(tmp_path / "r")]) == 0
     table = capsys.readouterr().out
-    assert "chaser" in table and "50.0%" in table and "all" in table
+    assert "chaser" in table and "50.0%" in table and "all" in table and "mean" in table
+
+
+def test_night_clips_are_the_video_rendered_at_night_once_per_seed(tmp_path):
+    truth = _truth(tmp_path / "truth", {"w": _walker_clip()})
+    video = _video(tmp_path / "v")
+    for out, night in (("day", []), ("n3", ["--night-seed", "3"]), ("n3b", ["--night-seed", "3"]),
+                       ("n4", ["--night-seed", "4"])):
+        assert eval_main(["uncut", "--video", str(video), "--truth", str(truth), "--out", str(tmp_path / out),
+                          *night]) == 0
+    clips = {out: load_dataset(tmp_path / out).sequences[0] for out in ("day", "n3", "n3b", "n4")}
+    assert {len(c) for c in clips.values()} == {8}
+    np.testing.assert_array_equal(clips["day"].boxes, clips["n3"].boxes)
+    frames = {out: np.stack([cv2.imread(str(f)) for f in c.frames]).astype(int) for out, c in clips.items()}
+    assert np.abs(frames["n3"] - frames["day"]).mean() > 5  # rendered, not copied
+    np.testing.assert_array_equal(frames["n3"], frames["n3b"])  # one seed, one night
+    assert np.abs(frames["n3"] - frames["n4"]).mean() > 1
 
 
 def test_results_without_states_are_refused_in_one_line(tmp_path, capsys):

@@ -159,14 +159,19 @@ def clip_absence(dataset: Dataset) -> dict[str, np.ndarray]:
 
 
 def uncut_scores(dataset: Dataset, folder: Path) -> list[UncutScores]:
-    """Per clip, then pooled over the frames of all clips ('all'), for the results and states in `folder`."""
+    """Per clip, then pooled over the frames of all clips ('all') and the mean of the clips' values ('mean': a
+    long absence in one clip weighs no more than any clip), for the results and states in `folder`."""
     states = read_states(dataset, folder)
     if states is None:
         raise EvalError(f"{folder}: no .states files beside the results (run it with dadiff-eval run)")
     results, absence = read_results(dataset, folder), clip_absence(dataset)
     parts = {s.name: _clip_frames(s.boxes, results[s.name], absence[s.name], states[s.name])
              for s in dataset.sequences}
-    return [_scores(name, [part]) for name, part in parts.items()] + [_scores("all", list(parts.values()))]
+    clips = [_scores(name, [part]) for name, part in parts.items()]
+    mean = UncutScores("mean", sum(c.in_view for c in clips), sum(c.absent for c in clips),
+                       *(float(np.nanmean([getattr(c, key) for c in clips]))
+                         for key in ("success", "precision", "tracking_off", "tracking_absent")))
+    return [*clips, _scores("all", list(parts.values())), mean]
 
 
 def format_uncut(rows: dict[str, list[UncutScores]]) -> str:
