@@ -71,6 +71,10 @@ def test_truth_of_the_wrong_length_or_a_box_on_an_absent_frame_is_refused(tmp_pa
     assert eval_main(["uncut", "--video", str(video), "--truth", str(boxed), "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "a box on a frame marked absent" in err
+    outside = _truth(tmp_path / "outside", {"w": _walker_clip()})
+    (outside / "clips.json").write_text(json.dumps({"../w": {"first_frame": 4}}))
+    assert eval_main(["uncut", "--video", str(video), "--truth", str(outside), "--out", str(tmp_path / "o3")]) == 2
+    assert "not a plain folder name" in capsys.readouterr().err
 
 
 def _results(folder: Path, name: str, boxes: list, states: list[str]) -> None:

@@ -61,6 +61,8 @@ def read_truth(folder: Path) -> dict[str, tuple[int, np.ndarray, np.ndarray]]:
         raise DatasetError(f"{folder / CLIPS}: expected {{clip: {{\"first_frame\": N, ...}}}}")
     out = {}
     for name, info in clips.items():
+        if not name or name in (".", "..") or "/" in name or "\\" in name or name == FRAMES:
+            raise DatasetError(f"{folder / CLIPS}: clip name {name!r} is not a plain folder name")
         first = info.get("first_frame") if isinstance(info, dict) else None
         if not isinstance(first, int) or first < 0:
             raise DatasetError(f"{folder / CLIPS}: clip {name!r} needs a first_frame >= 0")
