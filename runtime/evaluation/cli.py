@@ -9,6 +9,8 @@ dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
                      [--cutouts DIR] [--gusts]
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
+dadiff-eval uncut --video FILE --truth DIR --out DIR [--night-seed N]
+dadiff-eval uncut-score --dataset D RESULT_DIR...
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
 dadiff-eval hit-uav --out DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2] [--max-move 2]
@@ -104,7 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,score,table,anatomy,box-read,generate,video,detect,pseudo-label,hit-uav,cutouts,data,tune}")
+                                metavar="{run,score,table,anatomy,box-read,generate,video,uncut,uncut-score,detect,"
+                                        "pseudo-label,hit-uav,cutouts,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -205,6 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--gusts", action="store_true", help="with --source library: a gust knocks each sequence's "
                      "camera once (the picture jumps 20-40 px a frame, then drifts back): fast motion")
     _add_video_parser(sub)
+    _add_uncut_parsers(sub, selection)
     _add_detect_parser(sub)
     _add_pseudo_label_parser(sub)
     _add_hit_uav_parser(sub)
@@ -229,6 +233,19 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--threshold", type=positive_int, default=30,
                        help="grey-level difference from the background that counts as moving (default 30)")
     video.add_argument("--min-area", type=positive_int, default=150, help="smallest box in px (default 150)")
+
+
+def _add_uncut_parsers(sub: argparse._SubParsersAction, selection: argparse.ArgumentParser) -> None:
+    uncut = sub.add_parser("uncut", help="whole-clip sequences (OTB layout) from a video and hand-checked truth "
+                           "that marks frames unknown or absent (docs/vtest-uncut for vtest.avi)")
+    uncut.add_argument("--video", required=True, type=Path, help="the video the truth was made for")
+    uncut.add_argument("--truth", required=True, type=Path, help="truth folder: clips.json and one folder per clip")
+    uncut.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    uncut.add_argument("--night-seed", type=non_negative_int, metavar="N",
+                       help="render the video at night first (video's night camera and lights, drawn by N)")
+    score = sub.add_parser("uncut-score", parents=[selection],
+                           help="success, precision and 'tracking' while off the person on uncut clips")
+    score.add_argument("dirs", nargs="+", type=Path, metavar="DIR", help="tracker result folders, or their parent")
 
 
 def _add_detect_parser(sub: argparse._SubParsersAction) -> None:
@@ -684,6 +701,26 @@ def cmd_video(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_uncut(args: argparse.Namespace) -> int:
+    from .uncut import write_uncut_clips
+
+    start = time.perf_counter()
+    frames = write_uncut_clips(args.video, args.truth, args.out, args.night_seed)
+    look = "day" if args.night_seed is None else f"night (seed {args.night_seed})"
+    print(f"wrote the clips of {args.truth} over {frames} frames of {args.video} ({look}) to {args.out} "
+          f"in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def cmd_uncut_score(args: argparse.Namespace) -> int:
+    from .uncut import format_uncut, uncut_scores
+
+    dataset = load_dataset(args.dataset).select(args.sequences)
+    rows = {name: uncut_scores(dataset, folder) for name, folder in result_folders(args.dirs, dataset)}
+    print(format_uncut(rows))
+    return 0
+
+
 def format_library(library: Library) -> str:
     """One row per package and role: images per split and the licence; then the folder and its size."""
     counts = Counter((i.package, i.role, i.split) for r in ROLES for s in SPLITS for i in library.images(r, s))
@@ -846,7 +883,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "score": cmd_score, "table": cmd_table, "anatomy": cmd_anatomy,
                 "box-read": cmd_box_read, "generate": cmd_generate,
-                "video": cmd_video, "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "cutouts": cmd_cutouts,
+                "video": cmd_video, "uncut": cmd_uncut, "uncut-score": cmd_uncut_score,
+                "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "cutouts": cmd_cutouts,
                 "hit-uav": cmd_hit_uav,
                 "data": cmd_data,
                 "tune": cmd_tune}
