@@ -102,3 +102,48 @@ def test_broken_released_checkpoint_is_refused_naming_the_key(tmp_path, gat_shap
         load_checkpoint(path)
     message = str(err.value)
     assert "\n" not in message and key in message and str(path) in message
+
+
+def test_export_passes_its_parity_gate(gat_model_dir):
+    _, report = gat_model_dir
+    assert set(report.parity) == {"zf0", "cls", "loc", "cen"} and report.max_parity <= TOL
+    assert 66 < report.gflop_search < 67 and 12.5 < report.gflop_template < 13.5  # README 6: 66.45 / 13.05
+
+
+def test_onnx_matches_official_outputs(gat_model_dir, inputs, reference):
+    import onnxruntime as ort
+
+    folder, _ = gat_model_dir
+    z, x = inputs
+    template = ort.InferenceSession(str(folder / "template.onnx"), providers=["CPUExecutionProvider"])
+    assert [i.name for i in template.get_inputs()] == ["z", "roi"]
+    (zf,) = template.run(None, {"z": z, "roi": reference["roi"]})
+    assert np.abs(zf - reference["zf_aligned"]).max() <= TOL
+    search = ort.InferenceSession(str(folder / "search.onnx"), providers=["CPUExecutionProvider"])
+    assert [i.name for i in search.get_inputs()] == ["x", "zf0"]
+    for name, ours in zip(("cls", "loc", "cen"), search.run(["cls", "loc", "cen"], {"x": x, "zf0": zf}), strict=True):
+        assert np.abs(ours - reference[name]).max() <= TOL, name
+    meta = search.get_modelmeta().custom_metadata_map
+    assert meta["family"] == "dadiff-gat-googlenet" and meta["decoder"] == "siamgat"
+    assert meta["default_preset"] == "NUT_L" and meta["point_origin"] == "-98" and meta["instance_size"] == "287"
+    assert meta["template_inputs"] == '["z", "roi"]' and meta["search_outputs"] == '["cls", "loc", "cen"]'
+
+
+def test_runtime_tracks_the_fixture_sequence_as_the_official_tracker(gat_model_dir):
+    """The exported model in the onnxruntime Tracker, released settings: the official real-model boxes."""
+    import importlib.util
+
+    from dadiff.runtime import Tracker
+
+    folder, _ = gat_model_dir
+    ref = dict(np.load(gat_fixture_dir() / "dadiff_gat_tracker_ref.npz"))
+    spec = importlib.util.spec_from_file_location("make_frames", gat_fixture_dir() / "make_frames.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    frames, _ = module.make_frames()
+    tracker = Tracker.load(folder, threads=1, overrides={"lost_score": 0})
+    tracker.init(frames[0], ref["nutl_init_box"])
+    frames_checked = 4  # a search frame is 66 GFLOP: a few seconds each on a shared CPU
+    boxes = np.array([tracker.update(f).box for f in frames[1:1 + frames_checked]])
+    expected = ref["nutl_bbox"][:frames_checked]
+    assert np.all(np.abs(boxes - expected) <= 1e-5 * np.abs(expected))
