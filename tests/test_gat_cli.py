@@ -66,3 +66,11 @@ def test_bench_times_the_search_graph_with_the_template_roi(gat_model_dir, seque
     x = np.zeros((1, 3, 287, 287), np.float32)
     times = time_search(tracker, {"z": recorder.templates[0], "roi": recorder.rois[0]}, x, repeats=1)
     assert len(times) == 1 and times[0] > 0
+
+
+def test_int8_quantisation_refuses_a_gat_model_in_one_line(gat_model_dir):
+    from dadiff.export.quantize import QuantizeError, check_source
+
+    folder, _ = gat_model_dir
+    with pytest.raises(QuantizeError, match="dadiff-gat-googlenet model stays fp32"):
+        check_source(folder)
