@@ -199,6 +199,8 @@ def _decoder(meta: Mapping[str, str], source: str) -> dict[str, object]:
                          f"{', '.join(DECODERS)}")
     if decoder == "siamban":
         return {"decoder": decoder}
+    if not float(meta["stride"]).is_integer():  # its upsampled map has one point per crop pixel
+        raise ModelError(f"{source}: metadata key 'stride' is {meta['stride']!r}; the siamgat decoder needs an integer")
     region = {k: _meta_number(meta, k, source) for k in ("region_s", "region_l")}
     if not 0 < region["region_s"] <= region["region_l"] <= 1:
         raise ModelError(f"{source}: metadata keys 'region_s' {meta['region_s']!r} and 'region_l' "

@@ -74,3 +74,12 @@ def test_int8_quantisation_refuses_a_gat_model_in_one_line(gat_model_dir):
     folder, _ = gat_model_dir
     with pytest.raises(QuantizeError, match="dadiff-gat-googlenet model stays fp32"):
         check_source(folder)
+
+
+def test_template_without_the_roi_is_refused_in_one_line(gat_model_dir):
+    from dadiff.runtime import InputError, OnnxBackend
+
+    folder, _ = gat_model_dir
+    backend = OnnxBackend(folder, threads=1)
+    with pytest.raises(InputError, match="takes the target's ROI"):
+        backend.template(np.zeros((1, 3, 127, 127), np.float32))

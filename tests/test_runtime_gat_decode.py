@@ -118,3 +118,23 @@ def test_runtime_additions_stay_switchable(ref, frames):
     results = [tracker.update(f) for f in frames[1:]]
     assert [r.state for r in results[:5]] != ["lost"] * 5 and results[-1].state == "lost"
     assert results[-1].box == results[-2].box and 0 <= results[-1].score < 0.01
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"decoder": "siamcar"}, "metadata key 'decoder' is 'siamcar'"),
+    ({"region_s": None}, "metadata key 'region_s' is missing"),
+    ({"region_s": "0.5", "region_l": "0.2"}, "must satisfy 0 < region_s <= region_l <= 1"),
+    ({"stride": "7.5", "point_origin": "-90"}, "the siamgat decoder needs an integer"),
+])
+def test_bad_decoder_metadata_is_one_line_naming_the_key(change, message):
+    from dadiff.runtime.config import check_metadata
+    from dadiff.runtime.errors import ModelError
+
+    meta = tracker_metadata(gat_googlenet_config().tracker)
+    for key, value in change.items():
+        if value is None:
+            del meta[key]
+        else:
+            meta[key] = value
+    with pytest.raises(ModelError, match=message):
+        check_metadata(meta, "search.onnx")
