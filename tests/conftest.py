@@ -49,6 +49,17 @@ def gat_shapes() -> dict[str, list[int]]:
 
 
 @pytest.fixture(scope="session")
+def gat_frames() -> tuple[list, object]:
+    """The GAT tracker fixture's 20 generated frames and their boxes (its make_frames.py, numpy only)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_frames", gat_fixture_dir() / "make_frames.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.make_frames()
+
+
+@pytest.fixture(scope="session")
 def gat_checkpoint(tmp_path_factory, gat_shapes) -> Path:
     """The GAT fixture's procedural weights as a released-format checkpoint (`module.` prefixes), once per run."""
     pytest.importorskip("torch")

@@ -129,18 +129,13 @@ def test_onnx_matches_official_outputs(gat_model_dir, inputs, reference):
     assert meta["template_inputs"] == '["z", "roi"]' and meta["search_outputs"] == '["cls", "loc", "cen"]'
 
 
-def test_runtime_tracks_the_fixture_sequence_as_the_official_tracker(gat_model_dir):
+def test_runtime_tracks_the_fixture_sequence_as_the_official_tracker(gat_model_dir, gat_frames):
     """The exported model in the onnxruntime Tracker, released settings: the official real-model boxes."""
-    import importlib.util
-
     from dadiff.runtime import Tracker
 
     folder, _ = gat_model_dir
     ref = dict(np.load(gat_fixture_dir() / "dadiff_gat_tracker_ref.npz"))
-    spec = importlib.util.spec_from_file_location("make_frames", gat_fixture_dir() / "make_frames.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    frames, _ = module.make_frames()
+    frames, _ = gat_frames
     tracker = Tracker.load(folder, threads=1, overrides={"lost_score": 0})
     tracker.init(frames[0], ref["nutl_init_box"])
     frames_checked = 4  # a search frame is 66 GFLOP: a few seconds each on a shared CPU

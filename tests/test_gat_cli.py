@@ -3,7 +3,6 @@ with tests/test_export_gat_parity.py: built once per test run)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import cv2
@@ -12,7 +11,6 @@ import pytest
 
 pytest.importorskip("torch")
 
-from conftest import gat_fixture_dir  # noqa: E402
 from dadiff.runtime import Tracker, cli  # noqa: E402
 from dadiff.runtime.bench import time_search  # noqa: E402
 from dadiff.runtime.evaluation.cli import main as eval_main  # noqa: E402
@@ -21,12 +19,9 @@ FRAMES = 3  # 66 GFLOP per search frame: a few frames say the commands work
 
 
 @pytest.fixture(scope="module")
-def sequence(tmp_path_factory):
+def sequence(tmp_path_factory, gat_frames):
     """The tracker fixture's first frames as an OTB-style folder (dataset/Night1/img + groundtruth_rect.txt)."""
-    spec = importlib.util.spec_from_file_location("make_frames", gat_fixture_dir() / "make_frames.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    frames, boxes = module.make_frames()
+    frames, boxes = gat_frames
     root = tmp_path_factory.mktemp("gatseq") / "dataset"
     (root / "Night1" / "img").mkdir(parents=True)
     for i, frame in enumerate(frames[:FRAMES]):

@@ -8,7 +8,6 @@ and for the synthetic maps that move the peak).
 
 from __future__ import annotations
 
-import importlib.util
 import zlib
 
 import numpy as np
@@ -30,11 +29,8 @@ def ref() -> dict[str, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def frames(ref) -> list[np.ndarray]:
-    spec = importlib.util.spec_from_file_location("make_frames", gat_fixture_dir() / "make_frames.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    made, _ = module.make_frames()
+def frames(ref, gat_frames) -> list[np.ndarray]:
+    made, _ = gat_frames
     assert [zlib.crc32(f.tobytes()) for f in made] == ref["frame_crc32"].tolist()
     return made
 
