@@ -15,7 +15,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .decode import Detection, hann_window
+from .decode import Detection, foreground_score, hann_window, size_penalty
 
 
 def template_roi(w: float, h: float, s_z: int, exemplar_size: int) -> np.ndarray:
@@ -24,25 +24,6 @@ def template_roi(w: float, h: float, s_z: int, exemplar_size: int) -> np.ndarray
     scale = exemplar_size / s_z
     c = (exemplar_size - 1) / 2
     return np.array([[c - w * scale / 2, c - h * scale / 2, c + w * scale / 2, c + h * scale / 2]], np.float32)
-
-
-def _softmax_foreground(cls: np.ndarray) -> np.ndarray:
-    c = np.asarray(cls, np.float32).reshape(2, *cls.shape[-2:])
-    e = np.exp(c - c.max(axis=0))
-    return (e[1] / e.sum(axis=0)).astype(np.float32)
-
-
-def _context(w: np.ndarray | float, h: np.ndarray | float) -> np.ndarray | float:
-    pad = (w + h) * 0.5
-    return np.sqrt((w + pad) * (h + pad))
-
-
-def _penalty(w: np.ndarray | float, h: np.ndarray | float, target_w: float, target_h: float,
-             penalty_k: float) -> np.ndarray | float:
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        s_c = np.maximum(ratio := _context(w, h) / _context(target_w, target_h), 1.0 / ratio)
-        r_c = np.maximum(aspect := (target_w / target_h) / (w / h), 1.0 / aspect)
-        return np.nan_to_num(np.exp(-(r_c * s_c - 1.0) * penalty_k), nan=0.0)
 
 
 def _upsample(a: np.ndarray, size: int) -> np.ndarray:
@@ -80,12 +61,12 @@ class GatDecoder:
         s = self.score_size
         if any(tuple(m.shape[-2:]) != (s, s) for m in (cls, loc, cen)):
             raise ValueError(f"score maps are {cls.shape}, {loc.shape} and {cen.shape}, expected (1, 2|4|1, {s}, {s})")
-        score = _softmax_foreground(cls) + np.float32(0.05)
+        score = foreground_score(cls).astype(np.float32) + np.float32(0.05)
         c = np.asarray(cen, np.float32).reshape(s, s)
         spread = np.ptp(c)
         centred = (c - c.min()) / spread if spread > 0 else np.ones_like(c)  # a flat map weighs every cell alike
         lrtb = np.asarray(loc, np.float32).reshape(4, s, s)
-        penalty = _penalty(lrtb[0] + lrtb[2], lrtb[1] + lrtb[3], target_w, target_h, penalty_k)
+        penalty = size_penalty(lrtb[0] + lrtb[2], lrtb[1] + lrtb[3], target_w, target_h, penalty_k)
         p_score = (penalty * score * centred).astype(np.float32)
         hp_score = p_score * (1.0 - window_influence) + self.window * window_influence
         hp_up, p_up = _upsample(hp_score, self.up), _upsample(p_score, self.up)
@@ -96,7 +77,8 @@ class GatDecoder:
         row, col = divmod(best, self.up)
         point = lrtb_up[row, col]
         w, h = float(point[0] + point[2]), float(point[1] + point[3])  # summed in float32, as the release
-        size_penalty = _penalty(w / scale, h / scale, target_w, target_h, penalty_k)  # frame vs crop px, as released
+        # the box in frame pixels against the target in crop pixels: the release's unit mix-up
+        step_penalty = size_penalty(w / scale, h / scale, target_w, target_h, penalty_k)
         weight = float(score_up[row, col])
         return Detection(self.origin + col, self.origin + row, w, h, min(max(weight - 0.05, 0.0), 1.0),
-                         float(size_penalty), best, weight=weight, coarse=coarse[0] * self.up + coarse[1])
+                         float(step_penalty), best, weight=weight, coarse=coarse[0] * self.up + coarse[1])
