@@ -29,7 +29,8 @@ def torch_search_times(checkpoint: str, crops: str, steps: int | None, threads: 
     net = loaded.model.eval()
     data = np.load(crops)
     with torch.inference_mode():
-        kernels = GraphLayout.of(net).search_args(TemplateGraph(net)(torch.from_numpy(data["z"])))
+        template = [torch.from_numpy(data[k]) for k in ("z", "roi") if k in data]  # roi: DaDiff-GAT's
+        kernels = GraphLayout.of(net).search_args(TemplateGraph(net)(*template))
         search = SearchGraph(net)
         xs = torch.from_numpy(data["xs"])
         search(xs[:1], *kernels)

@@ -18,7 +18,7 @@ import torch
 
 from dadiff.runtime.ort_cache import file_sha256
 
-from .config import FAMILIES, ModelConfig, default_config, validate_config
+from .config import FAMILIES, GAT_FAMILY, ModelConfig, default_config, validate_config
 from .network import DaDiffNet, build_model
 
 FORMAT_VERSION = 1
@@ -96,14 +96,16 @@ def detect_family(sd: dict[str, torch.Tensor]) -> str | None:
     """The family whose signature keys the state_dict has, or None."""
     if "backbone.layer1.0.conv1.weight" in sd and "diffusion.conv_in.weight" in sd:
         return "dadiff-ban-r50"
+    if "backbone.Mixed_6e.branch1x1.conv.weight" in sd and "diffusion.conv_in.weight" in sd:
+        return GAT_FAMILY
     if "backbone._conv_stem.weight" in sd and "diffusion.conv_in.weight" in sd:
         return "dadiff-lite" if "backbone._blocks.10._project_conv.weight" in sd else "dadiff-mobile"
     return None
 
 
 def _describe_unknown(sd: dict[str, torch.Tensor]) -> str:
-    if any(k.startswith("car_head.") for k in sd):
-        return "it looks like DaDiff-GAT (car_head.* keys), which is not supported"
+    if "backbone.Mixed_6e.branch1x1.conv.weight" in sd:
+        return "it looks like a plain SiamGAT checkpoint without the DaDiff block (no diffusion.* keys)"
     if "backbone.layer1.0.conv1.weight" in sd and not any(k.startswith("diffusion.") for k in sd):
         return "it looks like a plain SiamBAN checkpoint without the DaDiff block (no diffusion.* keys)"
     return f"its keys match neither {' nor '.join(FAMILIES)} (first keys: {', '.join(list(sd)[:3])})"
@@ -174,7 +176,7 @@ def load_checkpoint(path: str | Path, family: str | None = None, steps: int | No
         if detected is None:
             raise CheckpointError(f"{p}: unrecognised model: {_describe_unknown(sd)}")
         cfg = default_config(detected)
-        source = "released" if detected == "dadiff-ban-r50" else "dadiff"
+        source = "released" if detected in ("dadiff-ban-r50", GAT_FAMILY) else "dadiff"
     if family is not None and family != cfg.family:
         raise CheckpointError(f"{p}: holds a {cfg.family} model, not {family}")
     if steps is not None and steps != cfg.ddim_steps:

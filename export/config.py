@@ -7,7 +7,8 @@ import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
-FAMILIES = ("dadiff-ban-r50", "dadiff-lite", "dadiff-mobile")
+FAMILIES = ("dadiff-ban-r50", "dadiff-gat-googlenet", "dadiff-lite", "dadiff-mobile")
+GAT_FAMILY, GAT_BACKBONE = "dadiff-gat-googlenet", "inception-v3-ou"
 # EfficientNet-Lite0 trunks: the backbone name -> (last block, first dilated block or None, output blocks).
 LITE0_TRUNKS: dict[str, tuple[int, int | None, tuple[int, ...]]] = {
     "efficientnet-lite0": (10, 5, (7, 10)),      # stride 8 (atrous from block 5), blocks 7 + 10 fused
@@ -17,7 +18,7 @@ FINE_SKIP_BACKBONE = "efficientnet-lite0-s16"  # `fine_skip` folds its block 4 (
 FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS = 4, 40
 # Output stride of each trunk: stem 2 x each subsampling block (tests/test_export_bad_input.py checks the Lite0
 # ones against the trunks). The tracker's stride is this over head_upsample; another one decodes boxes wrongly.
-BACKBONE_STRIDES = {"resnet50-atrous": 8, "efficientnet-lite0": 8, "efficientnet-lite0-s16": 16}
+BACKBONE_STRIDES = {"resnet50-atrous": 8, GAT_BACKBONE: 8, "efficientnet-lite0": 8, "efficientnet-lite0-s16": 16}
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
 HP_PRESETS: dict[str, dict[str, float]] = {
@@ -26,6 +27,14 @@ HP_PRESETS: dict[str, dict[str, float]] = {
     "NAT": {"lr": 0.45, "penalty_k": 0.14, "window_influence": 0.30},
     "NAT_L": {"lr": 0.466, "penalty_k": 0.083, "window_influence": 0.404},
 }
+# DaDiff-GAT's [lr, penalty_k, window_influence] (`HP_SEARCH` of its config.py; the test script defaults to NUT_L).
+GAT_HP_PRESETS: dict[str, dict[str, float]] = {
+    name: {"lr": lr, "penalty_k": k, "window_influence": wi} for name, (lr, k, wi) in {
+        "NUT_L": (0.24, 0.04, 0.04), "UAVDark70": (0.35, 0.05, 0.18), "NAT": (0.24, 0.04, 0.04),
+        "OTB100": (0.28, 0.16, 0.4), "GOT_10k": (0.7, 0.02, 0.35), "LaSOT": (0.35, 0.05, 0.18),
+        "UAV123": (0.24, 0.04, 0.04)}.items()
+}
+DECODERS = ("siamban", "siamgat")
 
 
 @dataclass(frozen=True)
@@ -40,10 +49,14 @@ class TrackerConfig:
     min_size: float = 10.0
     hp_presets: dict[str, dict[str, float]] = field(default_factory=lambda: dict(HP_PRESETS))
     default_preset: str = "UAVDark70"
+    decoder: str = "siamban"           # "siamgat": the SiamGAT/SiamCAR post-processing (runtime/decode_gat.py)
+    origin: int | None = None          # point (0, 0) when the grid is not centred on the crop (SiamGAT: -98)
+    region_s: float = 0.1              # siamgat: the fine stage's region, as a share of exemplar_size, at least
+    region_l: float = 0.44             # ... and at most
 
     @property
     def point_origin(self) -> int:
-        return -(self.score_size // 2) * self.stride
+        return -(self.score_size // 2) * self.stride if self.origin is None else self.origin
 
 
 @dataclass(frozen=True)
@@ -118,6 +131,19 @@ def ban_r50_config() -> ModelConfig:
     )
 
 
+def gat_googlenet_config() -> ModelConfig:
+    """The released DaDiff-GAT: SiamGAT (Inception-v3 to Mixed_6e, Graph Attention Union, CAR head) with the DaDiff
+    block. Search crop 287 -> 25 x 25 map whose cell (i, j) sits at 8j - 98 crop pixels from the centre (the
+    release's offset 45 minus its centre 143); the released clip has no minimum size."""
+    return ModelConfig(
+        family=GAT_FAMILY, backbone=GAT_BACKBONE, level_names=(0,), backbone_channels=(768,), channels=256,
+        template_feature_size=13, search_feature_size=25, head_hidden=256, denoiser_ch=256, denoiser_res_blocks=2,
+        denoiser_attention=True, denoiser_groups=32, ddim_steps=2, ddim_start_t=1, align="released",
+        tracker=TrackerConfig(instance_size=287, min_size=0.0, hp_presets=dict(GAT_HP_PRESETS),
+                              default_preset="NUT_L", decoder="siamgat", origin=45 - (287 - 1) // 2),
+    )
+
+
 def lite_config() -> ModelConfig:
     """Our onboard model: EfficientNet-Lite0 (blocks 7 and 10 fused, stride 8), small denoiser, paper layer."""
     return ModelConfig(
@@ -174,8 +200,8 @@ def _is_number(value: object) -> bool:
 def _check_model_fields(cfg: ModelConfig) -> None:
     if cfg.family not in FAMILIES:
         raise ValueError(f"'family' is {cfg.family!r}; expected one of {', '.join(FAMILIES)}")
-    if cfg.backbone != "resnet50-atrous" and not is_lite0(cfg.backbone):
-        known = ", ".join(("resnet50-atrous", *LITE0_TRUNKS))
+    if cfg.backbone not in ("resnet50-atrous", GAT_BACKBONE) and not is_lite0(cfg.backbone):
+        known = ", ".join(("resnet50-atrous", GAT_BACKBONE, *LITE0_TRUNKS))
         raise ValueError(f"'backbone' is {cfg.backbone!r}; expected one of {known}")
     for name in _INT_FIELDS:
         value = getattr(cfg, name)
@@ -212,6 +238,9 @@ def _check_model_fields(cfg: ModelConfig) -> None:
     if not _is_int(cfg.head_upsample) or cfg.head_upsample < 1:
         raise ValueError(f"'head_upsample' is {cfg.head_upsample!r}; expected an integer >= 1")
     _check_antialias(cfg)
+    if (cfg.family == GAT_FAMILY) != (cfg.backbone == GAT_BACKBONE):
+        raise ValueError(f"'backbone' {cfg.backbone!r} does not fit family {cfg.family!r} ({GAT_BACKBONE} is "
+                         f"{GAT_FAMILY}'s alone)")
     if cfg.fine_skip and cfg.backbone != FINE_SKIP_BACKBONE:
         raise ValueError(f"'fine_skip' needs the {FINE_SKIP_BACKBONE} trunk (dadiff-mobile), not {cfg.backbone}")
 
@@ -234,6 +263,10 @@ def _check_tracker_fields(tr: TrackerConfig) -> None:
         value = getattr(tr, name)
         if not _is_int(value):
             raise ValueError(f"'tracker.{name}' is {value!r}; expected an integer")
+    if tr.decoder not in DECODERS:
+        raise ValueError(f"'tracker.decoder' is {tr.decoder!r}; expected one of {', '.join(DECODERS)}")
+    if tr.origin is not None and not _is_int(tr.origin):
+        raise ValueError(f"'tracker.origin' is {tr.origin!r}; expected an integer or none")
     # torch-free: the runtime's bounds on the crop settings and the keys it reads from a preset
     from dadiff.runtime.config import GEOMETRY_LIMITS, TUNABLE_KEYS
 
@@ -261,6 +294,9 @@ def _check_tracker_fields(tr: TrackerConfig) -> None:
 def _check_tracker_against_model(cfg: ModelConfig) -> None:
     """The tracker's grid must be the network's: a stride the network does not have decodes every box wrongly."""
     tr = cfg.tracker
+    if (tr.decoder == "siamgat") != (cfg.family == GAT_FAMILY):
+        raise ValueError(f"'tracker.decoder' is {tr.decoder!r}; {cfg.family} outputs need "
+                         f"{'siamgat' if cfg.family == GAT_FAMILY else 'siamban'}")
     trunk = BACKBONE_STRIDES[cfg.backbone]
     if tr.stride * cfg.head_upsample != trunk:
         real = f"{trunk // cfg.head_upsample}" if trunk % cfg.head_upsample == 0 else f"{trunk}/{cfg.head_upsample}"
@@ -294,7 +330,9 @@ def with_overrides(cfg: ModelConfig, overrides: dict[str, Any]) -> ModelConfig:
 def tracker_metadata(tr: TrackerConfig) -> dict[str, str]:
     """The tracker keys of the exported metadata, as the runtime reads them (docs/model-format.md)."""
     hp = tr.hp_presets[tr.default_preset]
-    return {
+    decoder = {} if tr.decoder == "siamban" else {
+        "decoder": tr.decoder, "region_s": repr(tr.region_s), "region_l": repr(tr.region_l)}
+    return decoder | {
         "dadiff_format": "1", "exemplar_size": str(tr.exemplar_size), "instance_size": str(tr.instance_size),
         "stride": str(tr.stride), "score_size": str(tr.score_size), "point_origin": str(tr.point_origin),
         "context_amount": repr(tr.context_amount), "min_size": repr(tr.min_size),
@@ -329,6 +367,8 @@ def is_lite0(backbone: str) -> bool:
 def default_config(family: str) -> ModelConfig:
     if family == "dadiff-ban-r50":
         return ban_r50_config()
+    if family == GAT_FAMILY:
+        return gat_googlenet_config()
     if family == "dadiff-lite":
         return lite_config()
     if family == "dadiff-mobile":

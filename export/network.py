@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from .align import ReleasedAlignLayer, TrackingOrientedLayer
-from .config import FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS, LITE0_TRUNKS, ModelConfig, is_lite0
+from .config import FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS, GAT_FAMILY, LITE0_TRUNKS, ModelConfig, is_lite0
 from .denoiser import DDIMSampler, Denoiser
 from .head import MultiBAN
 from .neck import AdjustAllLayer, FineSkip
@@ -157,6 +157,12 @@ class DaDiffNet(nn.Module):
 
 def build_model(cfg: ModelConfig, pretrained_backbone: bool = False) -> DaDiffNet:
     """A new network; `pretrained_backbone` loads the ImageNet EfficientNet-Lite0 weights (lite, mobile)."""
+    if cfg.family == GAT_FAMILY:
+        if pretrained_backbone:
+            raise ValueError(f"no bundled pretrained weights for backbone {cfg.backbone!r}")
+        from .gat import DaDiffGAT
+
+        return DaDiffGAT(cfg)  # type: ignore[return-value]  # the same checkpoint, export and parity interface
     net = DaDiffNet(cfg)
     if pretrained_backbone:
         if not is_lite0(cfg.backbone):

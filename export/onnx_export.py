@@ -28,7 +28,7 @@ from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
 from .checkpoint import LoadedCheckpoint
-from .config import is_lite0
+from .config import GAT_BACKBONE, GAT_FAMILY, is_lite0, tracker_metadata
 from .defaults import DEFAULT_OPSET, PARITY_TOLERANCE, SUPPORTED_OPSETS
 from .network import DaDiffNet
 
@@ -47,12 +47,17 @@ def dadiff_version() -> str:
 
 
 class TemplateGraph(nn.Module):
+    """z (and, for DaDiff-GAT, the target's ROI) -> the template graph's outputs in `GraphLayout` order."""
+
     def __init__(self, net: DaDiffNet) -> None:
         super().__init__()
         self.net = net
+        self.layout = GraphLayout.of(net)
         self.eval()  # a fresh wrapper is in training mode, and export restores that mode on `net` too
 
-    def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def forward(self, z: torch.Tensor, *roi: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        if self.layout.roi:
+            return (self.net.template(z, *roi),)
         zf, kcls, kloc = self.net.template_kernels(z)
         return (*zf, *kcls, *kloc)
 
@@ -61,17 +66,26 @@ class TemplateGraph(nn.Module):
 class GraphLayout:
     """The one place the tensors between the two graphs are ordered: the template graph returns zf*, kcls*,
     kloc* (one per level); the search graph takes x, then kcls*, kloc*, and zf* for a model whose layer
-    attends to the template. The names go into the metadata, which the runtime feeds by."""
+    attends to the template. DaDiff-GAT (`roi`): the template graph takes z and roi and returns zf0 only,
+    the search graph takes x and zf0 and returns cls, loc and cen. The names go into the metadata, which the
+    runtime feeds by."""
 
     levels: int
     reads_template: bool = False
+    roi: bool = False
 
     @classmethod
     def of(cls, net: DaDiffNet) -> GraphLayout:
-        return cls(len(net.cfg.level_names), net.reads_template())
+        return cls(len(net.cfg.level_names), net.reads_template(), net.cfg.family == GAT_FAMILY)
+
+    def template_inputs(self) -> list[str]:
+        return ["z", "roi"] if self.roi else ["z"]
 
     def template_outputs(self) -> list[str]:
         return self._features() + self._kernels()
+
+    def search_outputs(self) -> list[str]:
+        return ["cls", "loc", "cen"] if self.roi else ["cls", "loc"]
 
     def search_inputs(self) -> list[str]:
         """The search graph's inputs after x."""
@@ -85,13 +99,15 @@ class GraphLayout:
     def split_search_args(self, args: Sequence[torch.Tensor]
                           ) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor] | None]:
         """(kcls, kloc, zf or None) from the search graph's inputs after x."""
-        n = self.levels
-        return list(args[:n]), list(args[n:2 * n]), list(args[2 * n:3 * n]) if self.reads_template else None
+        n, k = self.levels, len(self._kernels()) // 2
+        return list(args[:k]), list(args[k:2 * k]), list(args[2 * k:2 * k + n]) if self.reads_template else None
 
     def _features(self) -> list[str]:
         return [f"zf{i}" for i in range(self.levels)]
 
     def _kernels(self) -> list[str]:
+        if self.roi:  # the graph attention reads the template's features themselves
+            return []
         return [f"kcls{i}" for i in range(self.levels)] + [f"kloc{i}" for i in range(self.levels)]
 
 
@@ -104,37 +120,38 @@ class SearchGraph(nn.Module):
         self.layout = GraphLayout.of(net)
         self.eval()
 
-    def forward(self, x: torch.Tensor, *kernels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net.track(x, *self.layout.split_search_args(kernels))
+    def forward(self, x: torch.Tensor, *kernels: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        kcls, kloc, zf = self.layout.split_search_args(kernels)
+        if self.layout.roi:
+            return self.net.track(x, zf[0])
+        return self.net.track(x, kcls, kloc, zf)
 
 
 def model_metadata(loaded: LoadedCheckpoint, name: str, opset: int) -> dict[str, str]:
     cfg, tr = loaded.config, loaded.config.tracker
-    hp = tr.hp_presets[tr.default_preset]
     layout = GraphLayout.of(loaded.model)
     mean = _module_constant(cfg.backbone, "PIXEL_MEAN", [0.0] * 3)
     std = _module_constant(cfg.backbone, "PIXEL_STD", [1.0] * 3)
     sampler = loaded.model.sampler
-    meta = {
-        "dadiff_format": "1", "name": name, "family": cfg.family, "dadiff_version": dadiff_version(),
+    meta = tracker_metadata(tr) | {
+        "name": name, "family": cfg.family, "dadiff_version": dadiff_version(),
         "source_sha256": loaded.sha256, "source_format": loaded.source, "opset": str(opset),
-        "levels": str(len(cfg.level_names)), "exemplar_size": str(tr.exemplar_size),
-        "instance_size": str(tr.instance_size), "stride": str(tr.stride), "score_size": str(tr.score_size),
-        "point_origin": str(tr.point_origin), "context_amount": repr(tr.context_amount),
-        "min_size": repr(tr.min_size), "penalty_k": repr(hp["penalty_k"]),
-        "window_influence": repr(hp["window_influence"]), "lr": repr(hp["lr"]),
-        "hp_presets": json.dumps(tr.hp_presets, sort_keys=True), "default_preset": tr.default_preset,
-        "channel_order": "BGR", "pixel_range": "0-255", "pixel_mean": json.dumps([float(v) for v in mean]),
+        "levels": str(len(cfg.level_names)), "channel_order": "BGR", "pixel_range": "0-255",
+        "pixel_mean": json.dumps([float(v) for v in mean]),
         "pixel_std": json.dumps([float(v) for v in std]), "ddim_steps": str(cfg.ddim_steps),
         "ddim_timesteps": json.dumps(sampler.timesteps), "ddim_start_t": str(sampler.start_t),
+        "template_inputs": json.dumps(layout.template_inputs()),
         "template_outputs": json.dumps(layout.template_outputs()),
         "search_inputs": json.dumps(["x", *layout.search_inputs()]),
+        "search_outputs": json.dumps(layout.search_outputs()),
     }
     return meta
 
 
 def _module_constant(backbone: str, name: str, default: list[float]) -> list[float]:
     """The in-graph pixel normalisation of a backbone (the released ResNet takes raw pixels)."""
+    if backbone == GAT_BACKBONE:  # (v - 127.5) / 127.5 after reordering to RGB (export/inception.py)
+        return [127.5] * 3
     if is_lite0(backbone):
         from . import efficientnet_lite
 
@@ -181,6 +198,22 @@ def parity_inputs(cfg) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.from_numpy(z), torch.from_numpy(x)
 
 
+PARITY_TARGET = (40.0, 30.0)  # frame pixels: the DaDiff-GAT fixture's target, its ROI masks 63 of 169 cells
+
+
+def template_args(net: DaDiffNet, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """The template graph's inputs for crop z: (z,) or, for DaDiff-GAT, (z, roi) of a 40 x 30 target as the
+    tracker builds it (runtime/decode_gat.py)."""
+    if not GraphLayout.of(net).roi:
+        return (z,)
+    from dadiff.runtime.decode_gat import template_roi
+
+    w, h = PARITY_TARGET
+    tr = net.cfg.tracker
+    side = round(math.sqrt((w + tr.context_amount * (w + h)) * (h + tr.context_amount * (w + h))))
+    return z, torch.from_numpy(template_roi(w, h, side, tr.exemplar_size))
+
+
 def _export_graph(module: nn.Module, args: tuple, path: Path, inputs: list[str], outputs: list[str],
                   opset: int, meta: dict[str, str]) -> None:
     with warnings.catch_warnings():
@@ -221,21 +254,22 @@ def parity_error(ours: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
 def check_parity(net: DaDiffNet, folder: Path) -> dict[str, tuple[float, float]]:
     """Per output (max-abs, scaled) difference between PyTorch and onnxruntime on the same inputs."""
     z, x = parity_inputs(net.cfg)
+    args = template_args(net, z)
     with torch.no_grad():
-        t_out = TemplateGraph(net)(z)
+        t_out = TemplateGraph(net)(*args)
     tmpl = ort_session(folder / TEMPLATE_FILE)
     names = [o.name for o in tmpl.get_outputs()]
-    o_out = tmpl.run(None, {"z": z.numpy()})
+    o_out = tmpl.run(None, {i.name: a.numpy() for i, a in zip(tmpl.get_inputs(), args, strict=True)})
     parity = {n: parity_error(a, b.numpy()) for n, a, b in zip(names, o_out, t_out, strict=True)}
     search = ort_session(folder / SEARCH_FILE)
     outputs = dict(zip(names, o_out, strict=True))
     feeds = {"x": x.numpy()} | {i.name: outputs[i.name] for i in search.get_inputs()[1:]}
     kernels = [torch.from_numpy(feeds[i.name]) for i in search.get_inputs()[1:]]
     with torch.no_grad():
-        t_cls, t_loc = SearchGraph(net)(x, *kernels)
-    o_cls, o_loc = search.run(["cls", "loc"], feeds)
-    parity["cls"] = parity_error(o_cls, t_cls.numpy())
-    parity["loc"] = parity_error(o_loc, t_loc.numpy())
+        t_maps = SearchGraph(net)(x, *kernels)
+    outputs = GraphLayout.of(net).search_outputs()
+    for name, ours, ref in zip(outputs, search.run(outputs, feeds), t_maps, strict=True):
+        parity[name] = parity_error(ours, ref.numpy())
     return parity
 
 
@@ -277,7 +311,7 @@ def _probe_geometry(net: DaDiffNet, z: torch.Tensor, x: torch.Tensor) -> list[to
     cfg, tr = net.cfg, net.cfg.tracker
     try:
         with torch.no_grad():
-            kernels = GraphLayout.of(net).search_args(TemplateGraph(net)(z))
+            kernels = GraphLayout.of(net).search_args(TemplateGraph(net)(*template_args(net, z)))
             SearchGraph(net)(x, *kernels)
     except RuntimeError as e:
         reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
@@ -317,12 +351,12 @@ def export_model(loaded: LoadedCheckpoint, out_dir: str | Path, name: str, opset
         z, x = parity_inputs(loaded.config)
         kernels = _probe_geometry(net, z, x)
         gflop_search = count_gflop(SearchGraph(net), x, *kernels)
-        gflop_template = count_gflop(TemplateGraph(net), z)
+        gflop_template = count_gflop(TemplateGraph(net), *template_args(net, z))
         meta |= {"gflop_search": f"{gflop_search:.4f}", "gflop_template": f"{gflop_template:.4f}"}
-        _export_graph(TemplateGraph(graphs_net), (z,), staging / TEMPLATE_FILE, ["z"], layout.template_outputs(), opset,
-                      meta | {"graph": "template"})
+        _export_graph(TemplateGraph(graphs_net), template_args(net, z), staging / TEMPLATE_FILE,
+                      layout.template_inputs(), layout.template_outputs(), opset, meta | {"graph": "template"})
         _export_graph(SearchGraph(graphs_net), (x, *kernels), staging / SEARCH_FILE, ["x", *layout.search_inputs()],
-                      ["cls", "loc"], opset, meta | {"graph": "search"})
+                      layout.search_outputs(), opset, meta | {"graph": "search"})
         found = random_ops(staging / TEMPLATE_FILE) + random_ops(staging / SEARCH_FILE)
         if found:
             raise ExportError(f"the exported graphs contain random ops ({', '.join(found)}); refusing to ship")

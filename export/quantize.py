@@ -396,6 +396,9 @@ def check_source(folder: Path) -> dict[str, str]:
     meta = dict(backend.meta)
     if meta.get("precision", "fp32") != "fp32":
         raise QuantizeError(f"{folder}: already quantised (precision {meta['precision']}); give an fp32 model")
+    if meta.get("decoder", "siamban") != "siamban":  # its recipes and deviation checks name SiamBAN's head
+        raise QuantizeError(f"{folder}: int8 quantisation covers the SiamBAN-head families; this "
+                            f"{meta.get('family', meta['decoder'])} model stays fp32")
     return meta
 
 

@@ -35,13 +35,16 @@ class TorchBackend:
     def meta(self) -> dict[str, str]:
         return self._meta
 
-    def template(self, z: np.ndarray) -> dict[str, np.ndarray]:
+    def template(self, z: np.ndarray, roi: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        args = [torch.from_numpy(np.ascontiguousarray(z, dtype=np.float32))]
+        if self._template.layout.roi:  # DaDiff-GAT: the target's box in template-crop pixels
+            args.append(torch.from_numpy(np.asarray(roi, dtype=np.float32).reshape(1, 4)))
         with torch.no_grad():
-            outs = self._template(torch.from_numpy(np.ascontiguousarray(z, dtype=np.float32)))
+            outs = self._template(*args)
         return {name: t.numpy() for name, t in zip(self._outputs, outs, strict=True)}
 
-    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
         kernels = [torch.from_numpy(feeds[name]) for name in self._kernels]
         with torch.no_grad():
-            cls, loc = self._search(torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)), *kernels)
-        return cls.numpy(), loc.numpy()
+            maps = self._search(torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)), *kernels)
+        return tuple(m.numpy() for m in maps)

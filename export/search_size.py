@@ -54,6 +54,9 @@ def with_search_size(loaded: LoadedCheckpoint, size: int) -> LoadedCheckpoint:
     tr = cfg.tracker
     if size == tr.instance_size:
         return loaded
+    if tr.origin is not None:  # DaDiff-GAT: the release's grid is not centred on the crop (offset 45)
+        raise CheckpointError(f"search size {size}: this {cfg.family} checkpoint exports at its "
+                              f"{tr.instance_size} px search crop only (its score-map grid is fixed to that crop)")
     if size > tr.instance_size:
         raise CheckpointError(
             f"search size {size} is larger than this {cfg.family} checkpoint's {tr.instance_size} px: its stored "

@@ -15,7 +15,7 @@ from typing import Any
 
 from dadiff.runtime.evaluation.night import NIGHT_STYLES
 
-from .config import FAMILIES, ModelConfig, default_config, validate_config, with_overrides
+from .config import FAMILIES, GAT_FAMILY, ModelConfig, default_config, validate_config, with_overrides
 from .train_cli import SEED_MAX
 
 # The keys of each day data kind (export/train_data.py make_day_source reads them) and what each takes;
@@ -68,7 +68,8 @@ MAXIMUM: dict[str, tuple[float, bool]] = {  # (high, inclusive), as MINIMUM
     "night_path_lamps": (1.0, True), "negative_pairs": (1.0, True), "search_scale": (1.0, True),
     "ema_decay": (1.0, False), "search_shift": (128.0, True), "seed": (SEED_MAX, True),
 }
-CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": FAMILIES,
+TRAIN_FAMILIES = tuple(f for f in FAMILIES if f != GAT_FAMILY)  # dadiff-gat-googlenet: export and tracking only
+CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": TRAIN_FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain", "restore"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}
 ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings

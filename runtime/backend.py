@@ -17,7 +17,9 @@ class Backend(Protocol):
 
     `meta` holds the model metadata (docs/model-format.md, string values). Inputs are float32 NCHW crops
     of raw pixels 0..255 in the model's channel order; `search` returns the (1, 2, S, S) cls and
-    (1, 4, S, S) loc maps. `feeds` is whatever `template` returned, passed back unchanged.
+    (1, 4, S, S) loc maps, and a (1, 1, S, S) centerness map for a SiamGAT model (`decoder` siamgat), whose
+    `template` also takes `roi=`, the target's box (1, 4) in template-crop pixels. `feeds` is whatever
+    `template` returned, passed back unchanged.
     """
 
     @property
@@ -25,7 +27,7 @@ class Backend(Protocol):
 
     def template(self, z: np.ndarray) -> dict[str, np.ndarray]: ...
 
-    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]: ...
+    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]: ...
 
 
 class RecordingBackend:
@@ -40,6 +42,7 @@ class RecordingBackend:
         self.name = getattr(inner, "name", "recorded")
         self.image_name, *self.kernel_names = inner.search_inputs
         self.templates: list[np.ndarray] = []
+        self.rois: list[np.ndarray | None] = []
         self.recorded: list[dict[str, np.ndarray]] = []
         self._calls = 0
 
@@ -51,11 +54,12 @@ class RecordingBackend:
     def full(self) -> bool:
         return len(self.recorded) >= self.limit
 
-    def template(self, z: np.ndarray) -> dict[str, np.ndarray]:
+    def template(self, z: np.ndarray, roi: np.ndarray | None = None) -> dict[str, np.ndarray]:
         self.templates.append(z.copy())
-        return self.inner.template(z)
+        self.rois.append(None if roi is None else roi.copy())
+        return self.inner.template(z, roi)
 
-    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
         if self._calls % self.every == 0 and not self.full:
             self.recorded.append({self.image_name: x.copy(), **{k: feeds[k] for k in self.kernel_names}})
         self._calls += 1

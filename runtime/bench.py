@@ -251,8 +251,9 @@ def run_lanes(lanes: Sequence[BenchLane], warmup: int = 20, block: int = 50,
             lane.capture.release()
 
 
-def search_crops(tracker: Tracker, video: NightVideo, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """(z, xs): the template crop and the first `count` search crops the tracker makes on the video."""
+def search_crops(tracker: Tracker, video: NightVideo, count: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """(template inputs, xs): the template crop `z` (and the target's `roi` for a model that takes it) and the
+    first `count` search crops the tracker makes on the video."""
     recorder = RecordingBackend(tracker.backend, count)
     recording = Tracker(recorder, overrides=asdict(tracker.params))  # same settings, recorded backend
     capture = _open(video)
@@ -265,13 +266,16 @@ def search_crops(tracker: Tracker, video: NightVideo, count: int) -> tuple[np.nd
             recording.update(frame)
     finally:
         capture.release()
-    return recorder.templates[0], np.concatenate([feed[recorder.image_name] for feed in recorder.recorded])
+    template = {"z": recorder.templates[0]}
+    if recorder.rois[0] is not None:
+        template["roi"] = recorder.rois[0]
+    return template, np.concatenate([feed[recorder.image_name] for feed in recorder.recorded])
 
 
-def time_search(tracker: Tracker, z: np.ndarray, xs: np.ndarray, repeats: int = 3) -> list[float]:
+def time_search(tracker: Tracker, template: dict[str, np.ndarray], xs: np.ndarray, repeats: int = 3) -> list[float]:
     """Seconds per search-graph call on exactly these crops (the ORT side of the torch comparison)."""
     backend = tracker.backend
-    feeds = backend.template(z)
+    feeds = backend.template(**template)
     backend.search(xs[:1], feeds)
     times = []
     for _ in range(repeats):

@@ -173,11 +173,11 @@ def _model_result(model: Path, lane: BenchLane, run: BenchRun, args: argparse.Na
 
 def _compare_torch(tracker: Tracker, model: Path, args: argparse.Namespace, video: NightVideo) -> dict:
     checkpoint = _checkpoint(args, model)
-    z, xs = search_crops(tracker, video, args.torch_crops)
-    ort_times = time_search(tracker, z, xs)
+    template, xs = search_crops(tracker, video, args.torch_crops)
+    ort_times = time_search(tracker, template, xs)
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         crops = Path(tmp) / "crops.npz"
-        np.savez(crops, z=z, xs=xs)
+        np.savez(crops, xs=xs, **template)
         threads = thread_count(args.threads)
         torch_out = _subprocess_json(
             ["-m", "dadiff.export.bench_torch", "search", str(checkpoint), str(crops), "--threads", str(threads),

@@ -39,6 +39,9 @@ class Geometry:
     context_amount: float
     min_size: float
     channel_order: str = "BGR"
+    decoder: str = "siamban"  # "siamgat": runtime/decode_gat.py, with region_s / region_l
+    region_s: float = 0.1
+    region_l: float = 0.44
 
 
 @dataclass(frozen=True)
@@ -182,7 +185,27 @@ def parse_geometry(meta: Mapping[str, str], source: str) -> Geometry:
         raise ModelError(
             f"{source}: metadata key 'pixel_range' is {meta['pixel_range']!r}; this runtime feeds 0-255"
         )
-    return Geometry(channel_order=order, **values)  # type: ignore[arg-type]
+    return Geometry(channel_order=order, **values, **_decoder(meta, source))  # type: ignore[arg-type]
+
+
+DECODERS = ("siamban", "siamgat")
+
+
+def _decoder(meta: Mapping[str, str], source: str) -> dict[str, object]:
+    """The post-processing a model's outputs need (`decoder`, absent = siamban) and SiamGAT's region bounds."""
+    decoder = str(meta.get("decoder", "siamban")).strip()
+    if decoder not in DECODERS:
+        raise ModelError(f"{source}: metadata key 'decoder' is {meta['decoder']!r}, expected one of "
+                         f"{', '.join(DECODERS)}")
+    if decoder == "siamban":
+        return {"decoder": decoder}
+    if not float(meta["stride"]).is_integer():  # its upsampled map has one point per crop pixel
+        raise ModelError(f"{source}: metadata key 'stride' is {meta['stride']!r}; the siamgat decoder needs an integer")
+    region = {k: _meta_number(meta, k, source) for k in ("region_s", "region_l")}
+    if not 0 < region["region_s"] <= region["region_l"] <= 1:
+        raise ModelError(f"{source}: metadata keys 'region_s' {meta['region_s']!r} and 'region_l' "
+                         f"{meta['region_l']!r} must satisfy 0 < region_s <= region_l <= 1")
+    return {"decoder": decoder, **region}
 
 
 def presets(meta: Mapping[str, str], source: str) -> dict[str, dict[str, float]]:

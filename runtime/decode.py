@@ -60,7 +60,11 @@ def size_penalty(
 
 @dataclass(frozen=True)
 class Detection:
-    """The chosen cell: offset and size in crop pixels, its raw score and its penalty."""
+    """The chosen cell: offset and size in crop pixels, its raw score and its penalty.
+
+    `weight`: the score that scales the size step when it is not `score` (SiamGAT: the upsampled score + 0.05);
+    `coarse`: SiamGAT's first-stage peak (flat index on the upsampled map), -1 for SiamBAN.
+    """
 
     dx: float
     dy: float
@@ -69,6 +73,12 @@ class Detection:
     score: float
     penalty: float
     index: int
+    weight: float | None = None
+    coarse: int = -1
+
+    @property
+    def step_score(self) -> float:
+        return self.score if self.weight is None else self.weight
 
 
 class Decoder:

@@ -26,6 +26,7 @@ from .ort_cache import cached_model_path, store_atomically
 PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "OpenVINOExecutionProvider")
 CPU = "CPUExecutionProvider"
 _ALIASES = {"trt": "TensorrtExecutionProvider"}
+ROI = "roi"  # the template graph's optional second input (docs/model-format.md)
 
 
 def choose_providers(provider: str | None = None) -> list[str]:
@@ -196,7 +197,7 @@ class OnnxBackend:
             if meta.get("graph", graph) != graph:
                 raise ModelError(f"{path}: metadata key 'graph' is {meta['graph']!r}, expected '{graph}'")
             metas[graph] = meta
-        for key in (*REQUIRED_KEYS, *TUNABLE_KEYS, "hp_presets", "channel_order"):
+        for key in (*REQUIRED_KEYS, *TUNABLE_KEYS, "hp_presets", "channel_order", "decoder"):
             if metas["template"].get(key) != metas["search"].get(key):
                 raise ModelError(
                     f"{self.folder}: template.onnx and search.onnx disagree on metadata key '{key}'"
@@ -205,11 +206,15 @@ class OnnxBackend:
 
     def _check_io(self) -> None:
         geo = parse_geometry(self._meta, str(self.search_path))
-        t_inputs = self._template.get_inputs()
+        t_inputs = [a for a in self._template.get_inputs() if a.name != ROI]
         if len(t_inputs) != 1:
-            names = [a.name for a in t_inputs]
-            raise ModelError(f"{self.template_path}: expected one image input, found {names}")
+            names = [a.name for a in self._template.get_inputs()]
+            raise ModelError(f"{self.template_path}: expected one image input (and optionally '{ROI}'), found {names}")
         self._z_name = t_inputs[0].name
+        roi = [a for a in self._template.get_inputs() if a.name == ROI]
+        self.takes_roi = bool(roi)
+        if roi:
+            _check_shape(self.template_path, roi[0], (1, 4), "the target's box in template-crop pixels")
         _check_shape(
             self.template_path,
             t_inputs[0],
@@ -234,17 +239,25 @@ class OnnxBackend:
         self._feed_names = [a.name for a in self._search.get_inputs() if a.name != self._x_name]
         outputs = {a.name: a for a in self._search.get_outputs()}
         s = geo.score_size
-        for name, channels in (("cls", 2), ("loc", 4)):
+        channels = {"cls": 2, "loc": 4} | ({"cen": 1} if geo.decoder == "siamgat" else {})
+        for name, count in channels.items():
             if name not in outputs:
                 raise ModelError(f"{self.search_path}: output '{name}' is missing")
-            _check_shape(self.search_path, outputs[name], (1, channels, s, s), "metadata score_size")
+            _check_shape(self.search_path, outputs[name], (1, count, s, s), "metadata score_size")
         # Buffers the IO binding points at: the tracker crops straight into `input_buffer`.
         self.input_buffer = np.zeros((1, 3, geo.instance_size, geo.instance_size), np.float32)
-        self._outputs = {"cls": np.zeros((1, 2, s, s), np.float32), "loc": np.zeros((1, 4, s, s), np.float32)}
+        self._outputs = {name: np.zeros((1, count, s, s), np.float32) for name, count in channels.items()}
 
-    def template(self, z: np.ndarray) -> dict[str, np.ndarray]:
-        """All template-graph outputs by name (head kernels and diagnostic features)."""
-        values = self._template.run(None, {self._z_name: z})
+    def template(self, z: np.ndarray, roi: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """All template-graph outputs by name (head kernels and diagnostic features). `roi`: the target's box
+        (1, 4) in template-crop pixels, for a model whose template graph takes it (DaDiff-GAT); ignored otherwise."""
+        feeds = {self._z_name: z}
+        if self.takes_roi:
+            if roi is None:
+                raise InputError(f"{self.template_path}: this model's template graph takes the target's ROI; "
+                                 "pass roi=(1, 4) x1, y1, x2, y2 in template-crop pixels")
+            feeds[ROI] = np.asarray(roi, np.float32).reshape(1, 4)
+        values = self._template.run(None, feeds)
         feeds = dict(zip(self._template_outputs, values, strict=True))
         self._bind(feeds)
         return feeds
@@ -260,8 +273,9 @@ class OnnxBackend:
             binding.bind_output(name, "cpu", 0, np.float32, list(buffer.shape), buffer.ctypes.data)
         self._binding, self._bound, self._kept = binding, feeds, kept
 
-    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """(cls, loc) for one search crop, with the kernels taken from `feeds` by input name.
+    def search(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """(cls, loc) for one search crop, with the kernels taken from `feeds` by input name; (cls, loc, cen)
+        for a SiamGAT model.
 
         One bound session call; `x` is copied only when it is not `input_buffer` itself, and the kernels
         are bound again only when `feeds` is not the dict the last `template` call returned.
@@ -271,4 +285,4 @@ class OnnxBackend:
         if x is not self.input_buffer:
             np.copyto(self.input_buffer, x)
         self._search.run_with_iobinding(self._binding)
-        return self._outputs["cls"].copy(), self._outputs["loc"].copy()
+        return tuple(buffer.copy() for buffer in self._outputs.values())

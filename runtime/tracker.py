@@ -1,4 +1,5 @@
-"""The tracker: released SiamBAN pre/post-processing (spec section 8) around any backend.
+"""The tracker: released SiamBAN pre/post-processing (spec section 8) around any backend, or the released
+SiamGAT one (runtime/decode_gat.py) for a model whose metadata says `decoder` siamgat (DaDiff-GAT).
 
 Differences from the released tracker, all switchable through parameters:
 - a lost/found state (runtime/lost.py): while lost, box centre and size stay where they were and the
@@ -29,6 +30,7 @@ from .backend import Backend
 from .config import Params, parse_geometry, resolve_params
 from .crop import crop_side, mean_colour, subwindow
 from .decode import Decoder, Detection
+from .decode_gat import GatDecoder, template_roi
 from .errors import InputError, ModelError
 from .frames import as_image, to_blob
 from .lost import LOST, LostMonitor
@@ -145,7 +147,9 @@ class Tracker:
         self.geometry = parse_geometry(meta, source)
         self.params: Params = resolve_params(meta, source, preset, overrides)
         g = self.geometry
-        self._decode = Decoder(g.score_size, g.stride, g.point_origin)
+        self._gat = g.decoder == "siamgat"
+        self._decode = (GatDecoder(g.score_size, g.stride, g.point_origin, g.exemplar_size, g.region_s, g.region_l)
+                        if self._gat else Decoder(g.score_size, g.stride, g.point_origin))
         self._monitor = LostMonitor(self.params)
         compensate = self.params.motion_compensation > 0 and not self.params.released
         self._motion = PictureMotion(self.params.motion_compensation) if compensate else None
@@ -202,8 +206,12 @@ class Tracker:
         self._start = (max(w, self.geometry.min_size), max(h, self.geometry.min_size))  # as the first clip makes it
         self._fill = mean_colour(image)
         self._frame_size = image.shape[:2]
-        z = self._crop(image, self.geometry.exemplar_size, self._context_side())
-        self._feeds = self.backend.template(z)
+        side = self._context_side()
+        z = self._crop(image, self.geometry.exemplar_size, side)
+        if self._gat:  # its template graph masks the target's box (released: s_z rounded, the box unclipped)
+            self._feeds = self.backend.template(z, roi=template_roi(w, h, crop_side(side), self.geometry.exemplar_size))
+        else:
+            self._feeds = self.backend.template(z)
         self._monitor = LostMonitor(self.params)
         if self._motion is not None:
             self._motion.reset(image)
@@ -218,7 +226,7 @@ class Tracker:
             (h, w), (h0, w0) = image.shape[:2], self._frame_size
             raise InputError(f"frame is {w}×{h} but tracking started on a {w0}×{h0} frame; init() again to "
                              "track at another size")
-        g, p = self.geometry, self.params
+        g = self.geometry
         if self._motion is not None and (moved := self._motion.jolt(image)) is not None:
             self._centre = (self._centre[0] + moved[0], self._centre[1] + moved[1])  # where the jolt took it
         t_motion = time.perf_counter()
@@ -229,12 +237,12 @@ class Tracker:
         x = self._crop(image, g.instance_size, s_z * g.instance_size / g.exemplar_size * growth,
                        getattr(self.backend, "input_buffer", None))
         t1 = time.perf_counter()
-        cls, loc = self.backend.search(x, self._feeds)
+        maps = self.backend.search(x, self._feeds)
         t2 = time.perf_counter()
         img_h, img_w = image.shape[:2]
         w, h = self._size
-        if np.isfinite(cls).all() and np.isfinite(loc).all():
-            det = self._decode(cls, loc, w * scale, h * scale, p.penalty_k, p.window_influence)
+        if all(np.isfinite(m).all() for m in maps):
+            det = self._detect(maps, w * scale, h * scale, scale)
         else:  # a broken model (NaN weights) or a NaN input: a miss that holds the box and counts towards lost
             det = Detection(0.0, 0.0, w * scale, h * scale, 0.0, 0.0, -1)
         size, plausible = self._propose_size(det, scale, img_w, img_h)
@@ -260,7 +268,7 @@ class Tracker:
             raise InputError("Tracker.look() called before init()")
         image = as_image(frame)
         x, y, w, h = check_box(box, image.shape[1], image.shape[0])
-        g, p = self.geometry, self.params
+        g = self.geometry
         shift = _check_shift(shift, g.instance_size)
         kept = self._centre, self._size
         try:
@@ -269,20 +277,27 @@ class Tracker:
             scale = g.exemplar_size / s_z  # crop pixels per frame pixel
             self._centre = (x + (w - 1) / 2 + shift[0] / scale, y + (h - 1) / 2 + shift[1] / scale)
             crop = self._crop(image, g.instance_size, s_z * g.instance_size / g.exemplar_size)
-            cls, loc = self.backend.search(crop, self._feeds)
-            det = self._decode(cls, loc, w * scale, h * scale, p.penalty_k, p.window_influence)
+            det = self._detect(self.backend.search(crop, self._feeds), w * scale, h * scale, scale)
             cx, cy = self._centre[0] + det.dx / scale, self._centre[1] + det.dy / scale
         finally:
             self._centre, self._size = kept
         bw, bh = det.w / scale, det.h / scale
         return cx - bw / 2, cy - bh / 2, bw, bh
 
+    def _detect(self, maps: Sequence[np.ndarray], target_w: float, target_h: float, scale: float) -> Detection:
+        """The decoder's choice on the search graph's maps, for a target of this size in crop pixels."""
+        p = self.params
+        if self._gat:
+            cls, loc, cen = maps[:3]
+            return self._decode(cls, loc, cen, target_w, target_h, scale, p.penalty_k, p.window_influence)
+        return self._decode(maps[0], maps[1], target_w, target_h, p.penalty_k, p.window_influence)
+
     def _propose_size(self, det: Detection, scale: float, img_w: int, img_h: int) -> tuple[tuple[float, float], bool]:
         """The size this detection leads to (released lr blend, then the bounds and the frame clip) and
         whether it is plausible; applied only when the frame is not lost."""
         p = self.params
         w, h = self._size
-        lr = det.penalty * det.score * p.lr
+        lr = det.penalty * det.step_score * p.lr
         size = (w * (1 - lr) + det.w / scale * lr, h * (1 - lr) + det.h / scale * lr)
         if p.released:
             return self._clip_size(size, img_w, img_h), True

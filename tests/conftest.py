@@ -10,12 +10,17 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-ban"
+GAT_FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-gat"
 
 
-def fixture_dir() -> Path:
-    if not FIXTURES.is_dir():
-        pytest.skip(f"official fixtures not found at {FIXTURES}")
-    return FIXTURES
+def fixture_dir(folder: Path = FIXTURES) -> Path:
+    if not folder.is_dir():
+        pytest.skip(f"official fixtures not found at {folder}")
+    return folder
+
+
+def gat_fixture_dir() -> Path:
+    return fixture_dir(GAT_FIXTURES)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -35,6 +40,52 @@ def ort_cache_dir(tmp_path_factory) -> Path:
 def ban_shapes() -> dict[str, list[int]]:
     with open(fixture_dir() / "dadiff_ban_state_dict_shapes.json") as f:
         return json.load(f)
+
+
+@pytest.fixture(scope="session")
+def gat_shapes() -> dict[str, list[int]]:
+    with open(gat_fixture_dir() / "dadiff_gat_state_dict_shapes.json") as f:
+        return json.load(f)
+
+
+@pytest.fixture(scope="session")
+def gat_frames() -> tuple[list, object]:
+    """The GAT tracker fixture's 20 generated frames and their boxes (its make_frames.py, numpy only)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_frames", gat_fixture_dir() / "make_frames.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.make_frames()
+
+
+@pytest.fixture(scope="session")
+def gat_checkpoint(tmp_path_factory, gat_shapes) -> Path:
+    """The GAT fixture's procedural weights as a released-format checkpoint (`module.` prefixes), once per run."""
+    pytest.importorskip("torch")
+    from dadiff.export.procedural import write_released_checkpoint
+
+    path = tmp_path_factory.mktemp("gat") / "checkpoint_e45.pth"
+    write_released_checkpoint(str(path), gat_shapes, module_prefix=True)
+    return path
+
+
+@pytest.fixture(scope="session")
+def gat_loaded(gat_checkpoint):
+    """That checkpoint loaded (strict, weights-only) into the network: the large GAT model is built once per run."""
+    from dadiff.export.checkpoint import load_checkpoint
+
+    return load_checkpoint(gat_checkpoint)
+
+
+@pytest.fixture(scope="session")
+def gat_model_dir(tmp_path_factory, gat_loaded):
+    """The GAT checkpoint exported once per run (model folder and the export report)."""
+    from dadiff.export.onnx_export import export_model
+
+    out = tmp_path_factory.mktemp("models") / "gat"
+    report = export_model(gat_loaded, out, "gat-procedural")
+    return out, report
 
 
 @pytest.fixture(scope="session")

@@ -107,7 +107,7 @@ def test_crop_sizes_the_network_cannot_run_are_one_line(tmp_path, capsys) -> Non
 def test_backbone_strides_match_the_trunks_and_the_defaults() -> None:
     for backbone in LITE0_TRUNKS:  # the stem subsamples once, then each stride-2 block
         assert BACKBONE_STRIDES[backbone] == 2 ** (1 + len(lite0_subsampling_blocks(backbone)))
-    for family in ("dadiff-ban-r50", "dadiff-lite", "dadiff-mobile"):
+    for family in ("dadiff-ban-r50", "dadiff-gat-googlenet", "dadiff-lite", "dadiff-mobile"):
         validate_config(default_config(family))
 
 

@@ -103,9 +103,10 @@ def test_truncated_file(tmp_path, lite_checkpoint):
 
 def test_wrong_family(tmp_path, lite_sd, lite_checkpoint):
     assert "holds a dadiff-lite model, not dadiff-ban-r50" in _one_line_error(lite_checkpoint, family="dadiff-ban-r50")
-    gat = tmp_path / "gat.pth"
-    torch.save({"car_head.cls_logits.weight": torch.zeros(2), "diffusion.conv_in.weight": torch.zeros(1)}, gat)
-    assert "DaDiff-GAT" in _one_line_error(gat)
+    siamgat = tmp_path / "siamgat.pth"
+    torch.save({"backbone.Mixed_6e.branch1x1.conv.weight": torch.zeros(1),
+                "car_head.cls_logits.weight": torch.zeros(2)}, siamgat)
+    assert "plain SiamGAT checkpoint without the DaDiff block" in _one_line_error(siamgat)
     siamban = tmp_path / "siamban.pth"
     torch.save({"backbone.layer1.0.conv1.weight": torch.zeros(1)}, siamban)
     assert "without the DaDiff block" in _one_line_error(siamban)
