@@ -75,7 +75,7 @@ class NightCamera:
     black_level: float  # pedestal, fraction of full scale
     black_crush: float  # how far above the pedestal the camera sets black, in read-noise sigmas (a noise floor)
     bits: int  # ADC depth
-    max_gain: float  # the highest ISO gain (over the gain at which the full well fills full scale)
+    max_gain: float  # the highest ISO gain (over the gain at which the full well fills full scale): 80-400 e- fill it
     ae_target: float  # mean linear level the auto-exposure aims at...
     highlight_target: float  # ... unless the brightest 0.5 % would go above this linear level
     white_balance: float  # 0: the lamp's cast kept, 1: fully corrected
@@ -98,26 +98,28 @@ class NightCamera:
         gains /= gains.max()
         pools = tuple(
             Pool(x=float(rng.uniform(0.05, 0.95)), y=float(rng.uniform(0.05, 0.95)),
-                 radius=float(rng.uniform(0.04, 0.2)), peak=float(np.exp(rng.uniform(np.log(20), np.log(200)))),
+                 radius=float(rng.uniform(0.04, 0.2)), peak=float(np.exp(rng.uniform(np.log(15), np.log(120)))),
                  head=float(rng.choice([0.0, rng.uniform(1.5, 4.0)])))
             for _ in range(int(rng.choice([1, 1, 2, 2, 3, 3, 4]))))
         spatial = str(rng.choice(["bilateral", "nlmeans"]))
+        full_well = float(rng.uniform(5000, 15000))
+        brightest = float(np.exp(rng.uniform(np.log(80), np.log(400))))  # electrons at full scale, top ISO
         return cls(
             lamp=lamp,
             lamp_gains=tuple(round(float(g), 4) for g in gains),
             moonlight_share=float(rng.uniform(0.0, 0.4)),
-            illuminance=float(np.exp(rng.uniform(np.log(5e-6), np.log(5e-5)))),
+            illuminance=float(np.exp(rng.uniform(np.log(1.2e-5), np.log(4e-5)))),
             pools=pools,
             vignetting=float(rng.uniform(0.1, 0.6)),
             exposure_s=float(rng.choice([1 / 25, 1 / 30, 1 / 50])),
-            full_well=float(rng.uniform(5000, 15000)),
+            full_well=full_well,
+            max_gain=full_well / brightest,
             quantum_efficiency=float(rng.uniform(0.4, 0.8)),
             read_noise=float(rng.uniform(1.5, 6.0)),
             black_level=float(rng.uniform(0.02, 0.07)),
-            black_crush=float(rng.uniform(0.5, 2.0)),
+            black_crush=float(rng.uniform(0.3, 1.2)),
             bits=int(rng.choice([10, 12])),
-            max_gain=float(np.exp(rng.uniform(np.log(16), np.log(64)))),
-            ae_target=float(rng.uniform(0.08, 0.18)),
+            ae_target=float(rng.uniform(0.05, 0.12)),
             highlight_target=float(rng.uniform(0.5, 0.9)),
             white_balance=float(rng.uniform(0.0, 0.3)),
             saturation=float(rng.uniform(0.5, 1.0)),
