@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -102,7 +103,8 @@ def _write_video(frames: list[np.ndarray], folder: Path) -> Path:
     return folder
 
 
-def test_command_writes_day_and_night_sequences_from_a_moving_camera(tmp_path: Path, capsys):
+@pytest.mark.parametrize("night", ["real", "camera"])
+def test_command_writes_day_and_night_sequences_from_a_moving_camera(tmp_path: Path, capsys, night):
     truth = _walk(40, 90, 2, 60)
     video = _write_video(_panning_video([truth], 60), tmp_path / "pan")
     rng = np.random.default_rng(3)
@@ -110,8 +112,10 @@ def test_command_writes_day_and_night_sequences_from_a_moving_camera(tmp_path: P
     dets = [np.r_[d, [[200, 20, 30, 10, 0.9], [150, 150, 15, 40, 0.2]]] for d in dets]  # too wide; too unsure
     det = _write_det(tmp_path / "det.txt", dets)
     out = tmp_path / "bench"
-    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--out", str(out)]) == 0
+    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--out", str(out),
+                      "--night", night]) == 0
     assert "wrote 1 day + 1 night sequences" in capsys.readouterr().out
+    assert json.loads((out / "benchmark.json").read_text())["night"] == night
     dataset = load_dataset(out)
     day, night = (next(s for s in dataset.sequences if s.name == f"vid001_{k}") for k in ("day", "night"))
     assert len(day) == len(night) == 60

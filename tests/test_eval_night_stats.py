@@ -17,10 +17,10 @@ The frames are rendered from scikit-image photos (no library needed).
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
+from dadiff.runtime.evaluation.camera_night import night_statistics  # the note's statistics, one frame
 from dadiff.runtime.evaluation.night import NightLights, RealNight, render_night
 from dadiff.runtime.evaluation.photos import load_photos
 from dadiff.runtime.evaluation.scene import Scene
@@ -31,23 +31,6 @@ pytest.importorskip("skimage")  # the scene photos
 SIZE = (640, 360)
 SCENES = range(300, 310)  # 10 scenes x 3 frames
 FRAMES = 3
-
-
-def night_statistics(frame: np.ndarray) -> dict[str, float]:
-    """The note's statistics of one BGR uint8 frame."""
-    luma = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY).astype(np.float32)
-    dark = cv2.GaussianBlur(luma, (0, 0), 4) < 40
-    detail = luma - cv2.GaussianBlur(luma, (0, 0), 2)
-    blue, green, red = (float(frame[..., k].mean()) for k in range(3))
-    return {
-        "mean": float(luma.mean()),
-        "blue": blue,
-        "green": green,
-        "red": red,
-        "below_20": float((luma < 20).mean()),
-        "above_245": float((luma > 245).mean()),
-        "noise": float(detail[dark].std()) if dark.any() else float("nan"),
-    }
 
 
 def _medians(frames: list[np.ndarray]) -> dict[str, float]:

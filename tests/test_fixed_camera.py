@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -91,6 +92,18 @@ def test_video_command_writes_day_and_night_sequences(tmp_path: Path, capsys):
     day_luma = np.mean([cv2.imread(str(p), cv2.IMREAD_GRAYSCALE).mean() for p in day.frames[:5]])
     night_luma = np.mean([cv2.imread(str(p), cv2.IMREAD_GRAYSCALE).mean() for p in night.frames[:5]])
     assert night_luma < 40 < day_luma
+
+
+def test_video_command_renders_the_night_with_the_camera_model(tmp_path: Path, capsys):
+    video = _write_folder(_video([_walk(30, 100, 3, 50)], 50), tmp_path / "walk")
+    out = tmp_path / "bench"
+    args = ["video", "--video", str(video), "--out", str(out), "--min-frames", "40", "--night", "camera"]
+    assert eval_main(args) == 0
+    assert "wrote 1 day + 1 night sequences" in capsys.readouterr().out
+    info = json.loads((out / "benchmark.json").read_text())
+    assert info["night"] == "camera" and info["night_cameras"]["vid001_night"]["model"] == "camera"
+    night = next(s for s in load_dataset(out).sequences if s.name == "vid001_night")
+    assert len(night) == 50 and cv2.imread(str(night.frames[0]), cv2.IMREAD_GRAYSCALE).mean() < 60
 
 
 @pytest.mark.parametrize(

@@ -9,10 +9,13 @@ dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 
 dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
                      [--cutouts DIR] [--gusts]
 dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
+                  [--night real|camera]
 dadiff-eval uncut --video FILE --truth DIR --out DIR [--night-seed N]
 dadiff-eval uncut-score --dataset D RESULT_DIR...
+dadiff-eval night --dataset D --out DIR [--seed 0] [--sequences GLOB]
 dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
+                         [--night real|camera]
 dadiff-eval hit-uav --out DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2] [--max-move 2]
 dadiff-eval cutouts --dataset D --out DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
@@ -57,7 +60,7 @@ from .evaluate import (
     score_folder,
     tracker_folder,
 )
-from .fixed_camera import LabelSettings, read_video, write_fixed_camera_benchmark
+from .fixed_camera import NIGHT_MODELS, LabelSettings, read_video, write_fixed_camera_benchmark
 from .hit_uav import CLASSES as HIT_CLASSES
 from .hit_uav import SPLITS as HIT_SPLITS
 from .hit_uav import ChainSettings, write_hit_uav_benchmark
@@ -65,6 +68,7 @@ from .hit_uav import default_data_dir as default_hit_uav_dir
 from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
 from .metrics import Scores, paired_difference
 from .night import NIGHT_STYLES
+from .night_sets import format_statistics, write_camera_nights
 from .photos import PHOTO_SPLITS
 from .plots import write_plots
 from .scene import MAX_SIDE, frame_size
@@ -106,8 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
                            epilog="Exit codes: 0 done, 2 bad input (one 'dadiff-eval: error:' line), 130 interrupted "
                                   "(finished sequences are kept).")
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{run,score,table,anatomy,box-read,generate,video,uncut,uncut-score,detect,"
-                                        "pseudo-label,hit-uav,cutouts,data,tune}")
+                                metavar="{run,score,table,anatomy,box-read,generate,video,night,uncut,uncut-score,"
+                                        "detect,pseudo-label,hit-uav,cutouts,data,tune}")
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("--dataset", required=True, type=Path, help="dataset folder or pysot-toolkit .json file")
@@ -209,6 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "camera once (the picture jumps 20-40 px a frame, then drifts back): fast motion")
     _add_video_parser(sub)
     _add_uncut_parsers(sub, selection)
+    _add_night_parser(sub, selection)
     _add_detect_parser(sub)
     _add_pseudo_label_parser(sub)
     _add_hit_uav_parser(sub)
@@ -233,6 +238,20 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--threshold", type=positive_int, default=30,
                        help="grey-level difference from the background that counts as moving (default 30)")
     video.add_argument("--min-area", type=positive_int, default=150, help="smallest box in px (default 150)")
+    _add_night_model_argument(video)
+
+
+def _add_night_model_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--night", choices=NIGHT_MODELS, default="real",
+                        help="night model: real (the generator's, default) or camera (an independently written "
+                        "camera simulation in linear light, camera_night.py)")
+
+
+def _add_night_parser(sub: argparse._SubParsersAction, selection: argparse.ArgumentParser) -> None:
+    night = sub.add_parser("night", parents=[selection], help="the day sequences of any dataset and their nights "
+                           "by the independent camera model (OTB layout)")
+    night.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    night.add_argument("--seed", type=non_negative_int, default=0, help="seed of the night cameras (default 0)")
 
 
 def _add_uncut_parsers(sub: argparse._SubParsersAction, selection: argparse.ArgumentParser) -> None:
@@ -299,6 +318,7 @@ def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
     label.add_argument("--min-height", type=float, default=24.0, help="smallest box height in px (default 24)")
     label.add_argument("--aspect", type=_aspect_range, default=(1.2, 5.0), metavar="MIN-MAX",
                        help="height over width a box must have (default 1.2-5: upright people; 0.2-5: any object)")
+    _add_night_model_argument(label)
 
 
 def _add_hit_uav_parser(sub: argparse._SubParsersAction) -> None:
@@ -693,7 +713,7 @@ def cmd_video(args: argparse.Namespace) -> int:
     settings = LabelSettings(threshold=args.threshold, min_area=args.min_area, min_frames=args.min_frames,
                              max_frames=args.max_frames, min_aspect=args.min_aspect)
     start = time.perf_counter()
-    tracks = write_fixed_camera_benchmark(args.video, args.out, args.seed, settings)
+    tracks = write_fixed_camera_benchmark(args.video, args.out, args.seed, settings, night=args.night)
     frames = sum(len(t.boxes) for t in tracks)
     print(f"wrote {len(tracks)} day + {len(tracks)} night sequences ({frames} frames each way, "
           f"{min(len(t.boxes) for t in tracks)}-{max(len(t.boxes) for t in tracks)} per sequence) from "
@@ -718,6 +738,15 @@ def cmd_uncut_score(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset).select(args.sequences)
     rows = {name: uncut_scores(dataset, folder) for name, folder in result_folders(args.dirs, dataset)}
     print(format_uncut(rows))
+    return 0
+
+
+def cmd_night(args: argparse.Namespace) -> int:
+    check_output("--out", args.out, [args.dataset])
+    start = time.perf_counter()
+    count, stats = write_camera_nights(args.dataset, args.out, args.seed, args.sequences)
+    print(f"wrote {count} day + {count} night sequences (camera night, seed {args.seed}) from {args.dataset} to "
+          f"{args.out} in {time.perf_counter() - start:.1f} s; night: {format_statistics(stats)}")
     return 0
 
 
@@ -781,7 +810,7 @@ def cmd_pseudo_label(args: argparse.Namespace) -> int:
                             start_score=max(args.min_score, LinkSettings.start_score), min_height=args.min_height,
                             min_aspect=args.aspect[0], max_aspect=args.aspect[1])
     start = time.perf_counter()
-    tracks = write_detection_benchmark(args.video, args.detections, args.out, args.seed, settings)
+    tracks = write_detection_benchmark(args.video, args.detections, args.out, args.seed, settings, args.night)
     lengths = [len(t.boxes) for t in tracks]
     print(f"wrote {len(tracks)} day + {len(tracks)} night sequences ({sum(lengths)} frames each way, "
           f"{min(lengths)}-{max(lengths)} per sequence) from {args.video} and {args.detections} to {args.out} "
@@ -883,7 +912,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "score": cmd_score, "table": cmd_table, "anatomy": cmd_anatomy,
                 "box-read": cmd_box_read, "generate": cmd_generate,
-                "video": cmd_video, "uncut": cmd_uncut, "uncut-score": cmd_uncut_score,
+                "video": cmd_video, "night": cmd_night, "uncut": cmd_uncut, "uncut-score": cmd_uncut_score,
                 "detect": cmd_detect, "pseudo-label": cmd_pseudo_label, "cutouts": cmd_cutouts,
                 "hit-uav": cmd_hit_uav,
                 "data": cmd_data,

@@ -40,6 +40,7 @@ import numpy as np
 
 from ..sources import image_dir, image_files
 from ..user_files import read_user_text
+from .scene_error import SceneError
 
 NUT_LR_ATTRIBUTES = ("ARC", "BC", "CM", "FM", "OCC", "SV", "SOB", "VC", "IV", "LAI")
 UAV123_ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SOB")  # SOB: similar object
@@ -101,6 +102,12 @@ class Dataset:
         if not kept:
             raise DatasetError(f"{self.path}: no sequence matches {' '.join(patterns)}")
         return replace(self, sequences=kept)
+
+
+def check_new_folder(out: Path) -> None:
+    """Refuse to write a benchmark over anything: `out` must not exist or be an empty folder."""
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise SceneError(f"{out}: exists and is not an empty folder; choose a new --out")
 
 
 def plural(count: int, word: str, words: str | None = None) -> str:

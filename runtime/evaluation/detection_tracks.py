@@ -165,9 +165,9 @@ def _boxes(state: np.ndarray) -> np.ndarray:
 
 
 def write_detection_benchmark(video: str | Path, detections: str | Path, out: str | Path, seed: int = 0,
-                              settings: LinkSettings = LinkSettings()) -> list[Track]:
+                              settings: LinkSettings = LinkSettings(), night: str = "real") -> list[Track]:
     """Link `detections` of `video` into tracks and write them as `<out>/vidNNN_day` and `_night` sequences
-    (OTB layout, as `dadiff-eval video` does). Returns the tracks written."""
+    (OTB layout, as `dadiff-eval video` does; `night`: fixed_camera.NIGHT_MODELS). Returns the tracks written."""
     out = Path(out).expanduser()
     check_new_folder(out)
     frames = read_video(video)
@@ -179,5 +179,5 @@ def write_detection_benchmark(video: str | Path, detections: str | Path, out: st
                          "frames (try a lower --min-frames or --min-score)")
     info = {"generator": "dadiff.runtime.evaluation.detection_tracks", **video_info(video),
             "detections": str(detections), "settings": asdict(settings)}
-    write_tracks(frames, tracks, out, seed, info)
+    write_tracks(frames, tracks, out, seed, info, night)
     return tracks

@@ -8,7 +8,7 @@ background and what differs from it is what moves. A sequence follows one such f
 which it is seen alone until it merges with another, splits, changes size abruptly, stops being seen, or reaches
 the frame's border, so every box is a mover seen whole and alone. Its night is the generated benchmark's "real"
 night (`RealNight`), with the lights fixed in the image (the camera does not move) and the exposure locked on
-the sequence's first frame.
+the sequence's first frame; or, with `night="camera"`, the independent camera model's (camera_night.py).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 
 from ..frames import decode_video
 from ..ort_cache import file_sha256
-from .datasets import list_frames
+from .datasets import check_new_folder, list_frames
 from .metrics import iou_with_each
 from .night import NightLights, RealNight
 from .scene_error import SceneError
@@ -158,21 +158,25 @@ def night_sequence(day: list[np.ndarray], rng: np.random.Generator, seed: list[i
             for i, (frame, n) in enumerate(zip(day, numbers, strict=True))]
 
 
-def check_new_folder(out: Path) -> None:
-    """Refuse to write a benchmark over anything: `out` must not exist or be an empty folder."""
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise SceneError(f"{out}: exists and is not an empty folder; choose a new --out")
+NIGHT_MODELS = ("real", "camera")  # the generator's "real" night, or the independent camera model (camera_night)
 
 
-def write_tracks(frames: list[np.ndarray], tracks: list[Track], out: Path, seed: int, info: dict) -> None:
+def write_tracks(frames: list[np.ndarray], tracks: list[Track], out: Path, seed: int, info: dict,
+                 night: str = "real") -> None:
     """Each track as `<out>/vidNNN_day` and `_night` (OTB layout) with `attributes.json`, and `info` with the
-    sequences' video frames as `benchmark.json`."""
-    table = {}
+    sequences' video frames as `benchmark.json`; `night`: which night model renders the nights (NIGHT_MODELS);
+    the camera model's settings for each sequence are recorded under `night_cameras`."""
+    table, cameras = {}, {}
     for k, track in enumerate(tracks):
         name = f"vid{k + 1:03d}"
         day = frames[track.start:track.start + len(track.boxes)]
-        night = night_sequence(day, np.random.default_rng([seed, k]), [seed, k, 1_000_003])
-        for kind, images in (("day", day), ("night", night)):
+        if night == "camera":
+            from .camera_night import render_night  # the independent model: shares no code with night.py
+
+            dark, cameras[f"{name}_night"] = render_night(day, [seed, k])
+        else:
+            dark = night_sequence(day, np.random.default_rng([seed, k]), [seed, k, 1_000_003])
+        for kind, images in (("day", day), ("night", dark)):
             folder = out / f"{name}_{kind}"
             (folder / "img").mkdir(parents=True)
             for i, image in enumerate(images):
@@ -180,9 +184,11 @@ def write_tracks(frames: list[np.ndarray], tracks: list[Track], out: Path, seed:
             write_boxes(folder / "groundtruth_rect.txt", track.boxes)
         table[f"{name}_day"], table[f"{name}_night"] = [], ["LAI"]
     (out / "attributes.json").write_text(json.dumps(table, indent=1) + "\n")
-    info = {**info, "seed": seed, "night": "real",
+    info = {**info, "seed": seed, "night": night,
             "sequences": [{"name": f"vid{k + 1:03d}", "video_frames": [t.start + 1, t.start + len(t.boxes)]}
                           for k, t in enumerate(tracks)]}
+    if cameras:
+        info["night_cameras"] = cameras
     (out / "benchmark.json").write_text(json.dumps(info, indent=1) + "\n")
 
 
@@ -193,9 +199,9 @@ def video_info(video: str | Path) -> dict:
 
 def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int = 0,
                                  settings: LabelSettings = LabelSettings(), max_sequences: int | None = None,
-                                 max_video_frames: int | None = None) -> list[Track]:
+                                 max_video_frames: int | None = None, night: str = "real") -> list[Track]:
     """Label `video`'s movers and write them as `<out>/vidNNN_day` and `_night` sequences (OTB layout), with
-    `attributes.json` and `benchmark.json`. Returns the tracks written."""
+    `attributes.json` and `benchmark.json`; `night` as in `write_tracks`. Returns the tracks written."""
     out = Path(out).expanduser()
     check_new_folder(out)
     frames = read_video(video, max_video_frames)
@@ -206,5 +212,5 @@ def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int =
         raise SceneError(f"{video}: no mover seen whole and alone for {settings.min_frames} frames (is the camera "
                          "fixed? try a lower --min-frames)")
     info = {"generator": "dadiff.runtime.evaluation.fixed_camera", **video_info(video), "settings": asdict(settings)}
-    write_tracks(frames, tracks, out, seed, info)
+    write_tracks(frames, tracks, out, seed, info, night)
     return tracks
