@@ -20,7 +20,7 @@ from .config import TUNABLE_KEYS
 from .cpu import int8_warning
 from .crop import protocol_box
 from .errors import InputError, ModelError, os_error_line
-from .launch import stop_signals_interrupt
+from .launch import signals_held, stop_signals_interrupt
 from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
 from .runstats import RunStats
 from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
@@ -272,8 +272,9 @@ def _loop(
 
 
 def _emit(sinks: Sequence[Sink], frame: Frame, record: Record) -> None:
-    for sink in sinks:
-        sink.write(frame, record)
+    with signals_held():  # every output gets the frame or none does
+        for sink in sinks:
+            sink.write(frame, record)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -47,6 +47,31 @@ def stop_signals_interrupt() -> Iterator[None]:
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
 
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """A stop signal (Ctrl-C, SIGTERM, SIGHUP) that arrives inside the block acts when it ends: one frame's
+    record then reaches every output or none (an interrupt between the CSV row and the video frame left the
+    two a frame apart). The handlers are swapped, not the signal mask: onnxruntime's and OpenCV's threads
+    would take a masked signal for the process. Outside the main thread nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    held = [sig for sig in (signal.SIGINT, *STOP_SIGNALS) if signal.getsignal(sig) not in (signal.SIG_IGN, None)]
+    previous = {sig: signal.signal(sig, lambda signum, frame: caught.append(signum)) for sig in held}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if caught:  # now, as it would have acted
+            handler = previous[caught[0]]
+            if callable(handler):
+                handler(caught[0], None)
+            else:
+                signal.raise_signal(caught[0])
+
+
 def launch(prog: str, module: str) -> NoReturn:
     """Install the signal handling, then import `module` and exit with what its `main()` returns."""
     with stop_signals_interrupt():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,13 @@ REPO = Path(__file__).resolve().parents[1]
 FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-ban"
 GAT_FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-gat"
 
+
+
+def hangup_as_in_a_session() -> None:
+    """In a child process (`preexec_fn`): SIGHUP back to its default, as in a login session. A test run
+    started under `nohup` passes its ignored SIGHUP on, and the commands keep an ignored SIGHUP ignored on
+    purpose, so a test of what a dropped SSH session does must give the child a SIGHUP that acts."""
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 def fixture_dir(folder: Path = FIXTURES) -> Path:
     if not folder.is_dir():

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import pytest
 
+from conftest import hangup_as_in_a_session
 from dadiff.drone import cli
 from dadiff.drone.mav import mavlink
 from drone_peers import GroundStation, free_port, wait_until
@@ -197,7 +198,8 @@ def test_sigterm_stops_cleanly(media: dict[str, Path], tmp_path: Path, sig: int,
         "--mavlink",
         f"udpin:127.0.0.1:{port}",
     ]
-    proc = subprocess.Popen([sys.executable, "-c", script, *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    proc = subprocess.Popen([sys.executable, "-c", script, *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            preexec_fn=hangup_as_in_a_session)
     lines: list[bytes] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # type: ignore[arg-type]
     reader.start()

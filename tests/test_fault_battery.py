@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from conftest import hangup_as_in_a_session
 from dadiff.drone.link import LinkSettings
 from dadiff.drone.mav import mavlink
 from dadiff.drone.service import Service, ServiceSettings
@@ -640,8 +641,15 @@ def _command(prog: str, argv: list[str], **kwargs: Any) -> subprocess.Popen:
     module, function = ENTRY_POINTS[prog].split(":")
     code = f"import sys; from {module} import {function} as entry; sys.exit(entry())"  # as the console script
     env = {**os.environ, **kwargs.pop("env", {})}
+    before = kwargs.pop("preexec_fn", None)
+
+    def child() -> None:
+        hangup_as_in_a_session()
+        if before is not None:
+            before()
+
     return subprocess.Popen([sys.executable, "-c", code, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env, **kwargs)
+                            text=True, env=env, preexec_fn=child, **kwargs)
 
 
 def _small_disk() -> None:

@@ -5,6 +5,7 @@ udpin port that a second program could share. The command-line cases are in test
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -149,3 +150,21 @@ def test_a_udpin_port_cannot_be_shared_once_open() -> None:
                 second.bind(("127.0.0.1", port))
     finally:
         link.conn.close()
+
+
+def test_a_stop_signal_inside_signals_held_acts_when_the_block_ends() -> None:
+    """One frame's record reaches every output or none: Ctrl-C (or SIGTERM under the commands' handling) that
+    arrives while the record is written is raised after it, not in between two outputs."""
+    from dadiff.runtime.launch import signals_held, stop_signals_interrupt
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        written = []
+        with stop_signals_interrupt(), pytest.raises(KeyboardInterrupt):
+            with signals_held():
+                written.append("csv")
+                os.kill(os.getpid(), sig)
+                for _ in range(1000):  # Python runs a handler between bytecodes: give it every chance
+                    pass
+                written.append("mp4")
+        assert written == ["csv", "mp4"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
