@@ -15,6 +15,10 @@ GAT_FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-gat"
 
 
 
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # run as a background job: the Ctrl-C tests need Python's
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # handler here, and their children the default
+
+
 def hangup_as_in_a_session() -> None:
     """In a child process (`preexec_fn`): SIGHUP back to its default, as in a login session. A test run
     started under `nohup` passes its ignored SIGHUP on, and the commands keep an ignored SIGHUP ignored on
