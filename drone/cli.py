@@ -100,7 +100,7 @@ def mavlink_conn(text: str) -> str:
 
 def check_endpoint(url: str) -> None:
     """ValueError (one line) before the link first opens: a host that does not resolve (`udpout:` to one
-    logged "open" and sent nowhere), or a `udpin:`/`tcpin:` address this machine cannot listen on, its port
+    logged "open" and sent nowhere), or a `udp:`/`udpin:`/`tcpin:` address this machine cannot listen on, its port
     held by another program included (a second service on one udpin port silently took the ground station's
     traffic while the first heartbeated on). Serial ports and later reopens are left to the link's retries."""
     scheme, sep, rest = url.partition(":")
@@ -112,7 +112,7 @@ def check_endpoint(url: str) -> None:
         address = socket.getaddrinfo(host, int(port), socket.AF_INET, kind)[0][4]
     except (socket.gaierror, UnicodeError) as exc:
         raise ValueError(f"--mavlink {url}: cannot resolve host '{host}' ({getattr(exc, 'strerror', exc)})") from None
-    if scheme not in ("udpin", "tcpin"):
+    if scheme not in ("udp", "udpin", "tcpin"):  # pymavlink's plain udp: listens, as udpin: does
         return
     with socket.socket(socket.AF_INET, kind) as probe:
         if kind == socket.SOCK_STREAM:  # as pymavlink binds: our last run's TIME_WAIT is no conflict, a listener is

@@ -567,6 +567,7 @@ def _new_user_cases(root: Path, held_port: int) -> list[dict[str, Any]]:
     add("mavlink", run, [*service, "udpout:no-such-host.invalid:14550"])
     add("mavlink", run, [*service, f"udpin:127.0.0.1:{held_port}"])  # the port another service holds
     add("mavlink", run, [*service, f"udpin:0.0.0.0:{held_port}"])
+    add("mavlink", run, [*service, f"udp:127.0.0.1:{held_port}"])  # pymavlink's plain udp: listens too
     return cases
 
 
