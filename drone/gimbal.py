@@ -139,9 +139,10 @@ def advance(aim: Aim, rates: Rates, dt: float, limits: Limits) -> Aim:
     return Aim(pitch, yaw, aim.earth)
 
 
-def attitude_of(msg: Any) -> Aim | None:
+def attitude_of(msg: Any, px4: bool = False) -> Aim | None:
     """Pitch and yaw of a GIMBAL_DEVICE_ATTITUDE_STATUS, in the frame its flags give (YAW_IN_EARTH_FRAME, or
-    neither frame flag and YAW_LOCK: earth; otherwise the vehicle's); None for a quaternion that is not one."""
+    neither frame flag and YAW_LOCK: earth, except behind PX4, whose own reports set YAW_LOCK over a vehicle-
+    frame yaw; otherwise the vehicle's); None for a quaternion that is not one."""
     q = [float(v) for v in msg.q]
     if not all(math.isfinite(v) for v in q) or abs(math.fsum(v * v for v in q) - 1.0) > 0.1:
         return None
@@ -152,7 +153,7 @@ def attitude_of(msg: Any) -> Aim | None:
     elif flags & mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME:
         earth = False
     else:
-        earth = bool(flags & mavlink.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
+        earth = bool(flags & mavlink.GIMBAL_DEVICE_FLAGS_YAW_LOCK) and not px4
     return Aim(float(pitch), float(yaw), earth)
 
 
@@ -191,7 +192,7 @@ class GimbalFollower:
             device = getattr(msg, "gimbal_device_id", 0)
             if self.config.gimbal_device_id and device not in (0, self.config.gimbal_device_id):
                 return
-            attitude = attitude_of(msg)
+            attitude = attitude_of(msg, px4=self.autopilot == "px4")
             if attitude is not None:
                 self.attitude, self.attitude_at = attitude, now
         elif kind == "GIMBAL_MANAGER_STATUS":
@@ -337,10 +338,14 @@ class GimbalFollower:
     def _start_aim(self, now: float, me: tuple[int, int]) -> list[Any]:
         """In control, the aim not started: from the gimbal's reported attitude once there is a fresh one."""
         if self.attitude is not None and now - self.attitude_at <= self.config.attitude_timeout:
+            if self.autopilot == "px4" and self.attitude.earth:
+                # SET_ATTITUDE goes to PX4 in the vehicle frame: a compass heading sent there would swing the
+                # gimbal by the vehicle's heading the moment control is taken
+                self.reason = "the gimbal reports its yaw in the earth frame; PX4 is aimed in the vehicle frame"
+                return []
             self._warned_attitude = False
             self.sent_rates, self._aim_time = STILL, now
-            earth = self.attitude.earth and self.autopilot != "px4"
-            return [self._point(me, Aim(self.attitude.pitch, self.attitude.yaw, earth))]
+            return [self._point(me, self.attitude)]
         self.reason = "waiting for the gimbal attitude (GIMBAL_DEVICE_ATTITUDE_STATUS)"
         if now < self._next_interval:
             return []

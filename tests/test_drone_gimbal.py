@@ -131,6 +131,19 @@ def test_px4_gets_set_attitude_with_a_quaternion() -> None:
     assert not sp.flags & mavlink.GIMBAL_MANAGER_FLAGS_YAW_LOCK and sp.flags & mavlink.GIMBAL_MANAGER_FLAGS_PITCH_LOCK
 
 
+def test_px4_never_sends_an_earth_framed_yaw_as_a_vehicle_framed_one() -> None:
+    """A gimbal behind PX4 that reports a compass heading (YAW_IN_EARTH_FRAME): its yaw is not sent as a
+    vehicle-frame angle (the gimbal would swing by the vehicle's heading); the gimbal is not moved."""
+    f = GimbalFollower(CFG)
+    f.autopilot = "px4"
+    f.on_message(status(), ME)
+    f.step(0.0, det(stamp=0.0), ME)
+    f.on_message(ack(), ME)
+    f.on_message(attitude(-0.1, 2.5, mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME), ME, now=0.0)
+    assert f.step(0.0, det(stamp=0.0), ME) == [] and f.aim is None
+    assert "earth frame" in f.reason
+
+
 def test_an_earth_framed_attitude_is_aimed_earth_locked_and_limits_hold() -> None:
     f = in_control("other", 0.0, 3.1, mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME)
     assert f.aim is not None and f.aim.earth
