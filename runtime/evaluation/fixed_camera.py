@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..files import write_atomic
 from ..frames import decode_video
 from ..ort_cache import file_sha256
 from .datasets import check_new_folder, list_frames
@@ -183,13 +184,13 @@ def write_tracks(frames: list[np.ndarray], tracks: list[Track], out: Path, seed:
                 write_frame(folder / "img", i, image)
             write_boxes(folder / "groundtruth_rect.txt", track.boxes)
         table[f"{name}_day"], table[f"{name}_night"] = [], ["LAI"]
-    (out / "attributes.json").write_text(json.dumps(table, indent=1) + "\n")
+    write_atomic(out / "attributes.json", json.dumps(table, indent=1) + "\n")
     info = {**info, "seed": seed, "night": night,
             "sequences": [{"name": f"vid{k + 1:03d}", "video_frames": [t.start + 1, t.start + len(t.boxes)]}
                           for k, t in enumerate(tracks)]}
     if cameras:
         info["night_cameras"] = cameras
-    (out / "benchmark.json").write_text(json.dumps(info, indent=1) + "\n")
+    write_atomic(out / "benchmark.json", json.dumps(info, indent=1) + "\n")
 
 
 def video_info(video: str | Path) -> dict:

@@ -25,6 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..files import write_atomic
 from ..sources import read_image
 from .datasets import read_text
 from .fixed_camera import check_new_folder
@@ -278,9 +279,9 @@ def write_hit_uav_benchmark(root: str | Path, out: str | Path, split: str = "tes
         records.append({"name": name, "class": CLASSES[chain.cls],
                         "images": [stills[p].name for p in chain.stills],
                         "annotation_ids": [stills[p].ids[r] for p, r in zip(chain.stills, chain.boxes, strict=True)]})
-    (out / "attributes.json").write_text(json.dumps(attributes, indent=1) + "\n")
+    write_atomic(out / "attributes.json", json.dumps(attributes, indent=1) + "\n")
     info = {"generator": "dadiff.runtime.evaluation.hit_uav", "source": "HIT-UAV night images", "data": str(root),
             "split": split, "licence": LICENCE, "attribution": CITATION, "settings": asdict(settings),
             "stills": len(stills), "sequences": records, "pairs": pairs}
-    (out / "benchmark.json").write_text(json.dumps(info, indent=1) + "\n")
+    write_atomic(out / "benchmark.json", json.dumps(info, indent=1) + "\n")
     return chains

@@ -18,6 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..files import write_atomic
+from ..sources import read_image
 from .camera_night import MODEL, night_statistics, render_night
 from .datasets import Sequence, check_new_folder, load_dataset
 from .scene_error import SceneError
@@ -44,7 +46,7 @@ def read_frames(sequence: Sequence) -> list[np.ndarray]:
     """A sequence's frames (BGR uint8), one size throughout."""
     frames = []
     for path in sequence.frames:
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        image = read_image(path)
         if image is None:
             raise SceneError(f"{path}: cannot be read as an image")
         if frames and image.shape != frames[0].shape:
@@ -86,10 +88,10 @@ def write_camera_nights(dataset_dir: str | Path, out: str | Path, seed: int = 0,
         kept = [a for a in sequence.attributes if a != "LAI"]
         table[f"{base}_day"], table[f"{base}_night"] = kept, [*kept, "LAI"]
         rows += [night_statistics(f) for f in night[::STATISTICS_EVERY]]
-    (out / "attributes.json").write_text(json.dumps(table, indent=1) + "\n")
+    write_atomic(out / "attributes.json", json.dumps(table, indent=1) + "\n")
     info = {"generator": "dadiff.runtime.evaluation.night_sets", "night": MODEL, "source": str(dataset_dir),
             "seed": seed, "sequences": bases, "night_cameras": cameras}
-    (out / "benchmark.json").write_text(json.dumps(info, indent=1) + "\n")
+    write_atomic(out / "benchmark.json", json.dumps(info, indent=1) + "\n")
     return len(bases), {key: float(np.nanmedian([r[key] for r in rows])) for key in rows[0]}
 
 
