@@ -34,7 +34,6 @@ GAT_HP_PRESETS: dict[str, dict[str, float]] = {
         "OTB100": (0.28, 0.16, 0.4), "GOT_10k": (0.7, 0.02, 0.35), "LaSOT": (0.35, 0.05, 0.18),
         "UAV123": (0.24, 0.04, 0.04)}.items()
 }
-DECODERS = ("siamban", "siamgat")
 
 
 @dataclass(frozen=True)
@@ -259,6 +258,9 @@ def _check_antialias(cfg: ModelConfig) -> None:
 
 
 def _check_tracker_fields(tr: TrackerConfig) -> None:
+    # torch-free: the runtime's decoders, its bounds on the crop settings and the keys it reads from a preset
+    from dadiff.runtime.config import DECODERS, GEOMETRY_LIMITS, TUNABLE_KEYS
+
     for name in _TRACKER_INTS:
         value = getattr(tr, name)
         if not _is_int(value):
@@ -267,8 +269,6 @@ def _check_tracker_fields(tr: TrackerConfig) -> None:
         raise ValueError(f"'tracker.decoder' is {tr.decoder!r}; expected one of {', '.join(DECODERS)}")
     if tr.origin is not None and not _is_int(tr.origin):
         raise ValueError(f"'tracker.origin' is {tr.origin!r}; expected an integer or none")
-    # torch-free: the runtime's bounds on the crop settings and the keys it reads from a preset
-    from dadiff.runtime.config import GEOMETRY_LIMITS, TUNABLE_KEYS
 
     for name in ("context_amount", "min_size"):
         value = getattr(tr, name)
