@@ -110,13 +110,16 @@ def _open(path: Path, threads: int, providers: list[str], cache: bool) -> ort.In
         except Exception:  # a damaged cache entry: rebuild it from the model
             cached.unlink(missing_ok=True)
     if cached is not None:
+        session = None
         try:
             with store_atomically(cached) as staging:
                 options = session_options(threads)
                 options.optimized_model_filepath = str(staging)
-                return ort.InferenceSession(str(path), sess_options=options, providers=providers)
-        except Exception:  # the cache could not be written (a full disk): load the model without it
+                session = ort.InferenceSession(str(path), sess_options=options, providers=providers)
+        except Exception:  # the cache could not be written (a full disk): the session stands without it
             pass
+        if session is not None:  # optimised once: a cache that failed after it costs no second optimisation
+            return session
     try:
         return ort.InferenceSession(str(path), sess_options=session_options(threads), providers=providers)
     except Exception as exc:  # onnxruntime raises several unrelated types for unreadable models
