@@ -206,11 +206,12 @@ def template_args(net: DaDiffNet, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
     tracker builds it (runtime/decode_gat.py)."""
     if not GraphLayout.of(net).roi:
         return (z,)
+    from dadiff.runtime.crop import context_side, crop_side
     from dadiff.runtime.decode_gat import template_roi
 
     w, h = PARITY_TARGET
     tr = net.cfg.tracker
-    side = round(math.sqrt((w + tr.context_amount * (w + h)) * (h + tr.context_amount * (w + h))))
+    side = crop_side(context_side(w, h, tr.context_amount))  # the window the tracker cuts (Tracker.init)
     return z, torch.from_numpy(template_roi(w, h, side, tr.exemplar_size))
 
 

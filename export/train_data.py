@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from dadiff.runtime.crop import crop_side, mean_colour, subwindow
+from dadiff.runtime.crop import context_side, crop_side, mean_colour, subwindow
 from dadiff.runtime.evaluation.datasets import DatasetError, list_frames, plural, read_boxes, warn
 
 from .train_check import DAY_KINDS
@@ -46,11 +46,6 @@ class CropConfig:
     @property
     def origin(self) -> float:
         return -(self.score_size // 2) * self.stride
-
-
-def context_side(w: float, h: float, context: float) -> float:
-    p = context * (w + h)
-    return math.sqrt((w + p) * (h + p))
 
 
 def box_centre(box: np.ndarray) -> tuple[float, float]:

@@ -22,6 +22,13 @@ import numpy as np
 MAX_CANVAS_SIDE = 1024  # larger windows take the remap path: a padded canvas would be 3 MB or more
 
 
+def context_side(w: float, h: float, context: float) -> float:
+    """The side of the square window around a w x h target with `context` of its perimeter added (SiamFC's
+    s_z): the template's window, and the search window's before it is scaled up to the search crop."""
+    pad = context * (w + h)
+    return math.sqrt((w + pad) * (h + pad))
+
+
 def crop_side(size: float) -> int:
     """Window side in frame pixels: round half to even (Python/numpy `round`), at least 1."""
     return max(1, int(round(size)))

@@ -28,7 +28,7 @@ from dadiff.models import ModelNotFoundError, resolve
 
 from .backend import Backend
 from .config import Params, parse_geometry, resolve_params
-from .crop import crop_side, mean_colour, subwindow
+from .crop import context_side, crop_side, mean_colour, subwindow
 from .decode import Decoder, Detection
 from .decode_gat import GatDecoder, template_roi
 from .errors import InputError, ModelError
@@ -186,9 +186,7 @@ class Tracker:
         return self._monitor.state
 
     def _context_side(self) -> float:
-        w, h = self._size
-        pad = self.geometry.context_amount * (w + h)
-        return math.sqrt((w + pad) * (h + pad))
+        return context_side(*self._size, self.geometry.context_amount)
 
     def _crop(self, image: np.ndarray, out_size: int, side: float, out: np.ndarray | None = None) -> np.ndarray:
         patch = subwindow(image, self._centre, out_size, crop_side(side), self._fill)
