@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -51,6 +52,7 @@ from .network import DaDiffNet, build_model
 from .train_check import SetupError, check_train_values, resolved
 from .train_cli import build_parser, finish_line
 from .train_data import CropConfig, PairStream, make_day_source
+from .train_stages import STAGES, StagePlan, plan_stages
 from .train_toml import config_chain, format_toml, key_file
 from .weight_average import WeightAverage
 
@@ -114,9 +116,15 @@ class TrainConfig:
     def from_toml(cls, path: str | Path) -> TrainConfig:
         """The config in `path`, after the files it `extends`; each file's keys are checked where they are
         written (unknown keys, types and ranges), so an error names the file that holds the bad key."""
+        return cls.from_chain(config_chain(path), path)
+
+    @classmethod
+    def from_chain(cls, chain: Sequence[tuple[str | Path, dict[str, Any]]], path: str | Path) -> TrainConfig:
+        """The config of (file or stage, its own keys) pairs, later ones replacing earlier keys; `path` names
+        the whole in errors that need more than one key."""
         known = set(cls.__dataclass_fields__)
         flat: dict[str, Any] = {}
-        for file, own in config_chain(path):
+        for file, own in chain:
             unknown = sorted(set(own) - known)
             if unknown:
                 raise ValueError(f"{file}: unknown config keys: {', '.join(unknown)} (dadiff-train --help lists "
@@ -292,6 +300,7 @@ class Trainer:
             self.opt.add_param_group({"params": list(self.adapter.parameters()), "lr_mult": 1.0})
         self.ema = WeightAverage(self.net, cfg.ema_decay) if cfg.ema_decay else None
         self.step = 0
+        self.start_step = 0  # where this process's run began (a resumed run: the state's step)
         forward = TrainForward(self.net, cfg.seed * 1000 + rank, self.device, cfg.align_target, cfg.loc_region,
                                cfg.lambda_side)
         self.model = DistributedDataParallel(forward, find_unused_parameters=True) if world > 1 else forward
@@ -563,7 +572,8 @@ def pick_device(name: str, rank: int = 0) -> str:
 
 
 def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, device: str = "cpu",
-        max_minutes: float | None = None) -> Trainer:
+        max_minutes: float | None = None, stop_at: int | None = None) -> Trainer:
+    """Train `cfg` from its last.pt (or its start) to its `steps` (or `stop_at`, within the same schedule)."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
     if world > 1 and not dist.is_initialized():
@@ -571,6 +581,7 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
     trainer = Trainer(cfg, rank, world, pick_device(device, rank))
     deadline = time.monotonic() + 60 * max_minutes if max_minutes else math.inf
     resumed = trainer.resume()
+    trainer.start_step = trainer.step
     loader = iter(data_loader(cfg, trainer.net, rank, trainer.step))
     log_path = trainer.out / "log.csv"
     fields = ["step", "lr", "total", "cls", "loc", "align", "adv", "disc", "distill", "feature", "night_cls",
@@ -585,7 +596,7 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
         writer = csv.DictWriter(log_file, fieldnames=fields, extrasaction="ignore")
         if new_log:
             writer.writeheader()
-    end = cfg.steps if max_steps is None else min(cfg.steps, trainer.step + max_steps)
+    end = min(cfg.steps, stop_at or cfg.steps, trainer.step + max_steps if max_steps is not None else cfg.steps)
     bar = None
     if progress and rank == 0:
         from tqdm import tqdm
@@ -620,6 +631,78 @@ def run(cfg: TrainConfig, max_steps: int | None = None, progress: bool = True, d
     return trainer
 
 
+@dataclass
+class Stage:
+    """A stage of a recipe, its config resolved; a plain config is a recipe of one stage."""
+
+    plan: StagePlan
+    cfg: TrainConfig
+
+    @property
+    def result(self) -> Path:
+        """The state the next stage continues from (the weight average where the stage keeps one)."""
+        out = Path(self.cfg.out)
+        return out / "final-ema.pt" if self.cfg.ema_decay > 0 and self.plan.stop_at is None else out / "final.pt"
+
+    @property
+    def finished(self) -> bool:
+        return (Path(self.cfg.out) / "final.pt").exists()
+
+
+def load_recipe(path: str | Path, out: str | None = None) -> list[Stage]:
+    """The stages of the config in `path` (export/train_stages.py): each stage's keys over the shared ones,
+    its folder `<out>/NN-name`, its `init` the previous stage's final state. A config without stages is a
+    recipe of one stage named ""; `out` replaces the config's output folder."""
+    chain = config_chain(path)
+    stages = next((own[STAGES] for _, own in reversed(chain) if STAGES in own), None)
+    chain = [(file, {k: v for k, v in own.items() if k != STAGES}) for file, own in chain]
+    if out is not None:
+        chain.append(("--out", {"out": out}))
+    if stages is None:
+        return [Stage(StagePlan(1, "", {}), TrainConfig.from_chain(chain, path))]
+    plans = plan_stages(stages, path, set(TrainConfig.__dataclass_fields__))
+    out = TrainConfig.from_chain([*chain, (plans[0].label(path), plans[0].keys)], path).out
+    recipe: list[Stage] = []
+    for plan in plans:
+        keys = {**plan.keys, "out": str(plan.folder(out))}
+        if recipe:
+            keys["init"] = str(recipe[-1].result)
+        cfg = TrainConfig.from_chain([*chain, (plan.label(path), keys)], plan.label(path))
+        if plan.stop_at is not None and plan.stop_at > cfg.steps:
+            raise ValueError(f"{plan.label(path)}: 'stop_at' is {plan.stop_at}; expected <= its steps ({cfg.steps})")
+        recipe.append(Stage(plan, cfg))
+    return recipe
+
+
+def run_recipe(recipe: list[Stage], max_steps: int | None = None, device: str = "cpu",
+               max_minutes: float | None = None) -> tuple[Stage, Trainer | None]:
+    """Each unfinished stage in order, within one budget of steps and minutes; (the stage it stopped in or
+    the last, its trainer or None when every stage had finished before)."""
+    deadline = time.monotonic() + 60 * max_minutes if max_minutes else math.inf
+    trainer = None
+    for before, stage in zip([None, *recipe], recipe, strict=False):
+        if stage.finished:
+            continue
+        last = Path(stage.cfg.out) / "last.pt"
+        if stage.plan.resume and not last.exists():  # go on with the previous stage's run: its step and optimiser
+            last.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(Path(before.cfg.out) / "last.pt", last)
+        end = stage.plan.stop_at or stage.cfg.steps
+        minutes = None if deadline == math.inf else max(0.0, (deadline - time.monotonic()) / 60)
+        trainer = run(stage.cfg, max_steps, device=device, max_minutes=minutes,
+                      stop_at=stage.plan.stop_at)
+        if max_steps is not None:
+            max_steps -= trainer.step - trainer.start_step
+        if trainer.step < end:
+            return stage, trainer
+        if stage.plan.stop_at is not None:  # the state the next stage continues from
+            trainer.save(Path(stage.cfg.out) / "final.pt")
+        if (max_steps is not None and max_steps <= 0) or time.monotonic() >= deadline:
+            following = recipe[stage.plan.index:]
+            return (following[0], None) if following else (stage, trainer)
+    return recipe[-1], trainer
+
+
 def replica_divergence(net: nn.Module) -> float:
     """Max-abs difference of every parameter from rank 0's copy (0.0 when DDP kept the replicas in sync)."""
     flat = torch.cat([p.detach().reshape(-1) for p in net.parameters()])
@@ -630,12 +713,46 @@ def replica_divergence(net: nn.Module) -> float:
     return float(diff)
 
 
+def show_recipe(recipe: list[Stage]) -> str:
+    """A staged recipe written out whole: every stage's keys, in a file that reads back to the same stages."""
+    out = Path(recipe[0].cfg.out).parent
+    parts = [format_toml({"out": str(out)})]
+    for stage in recipe:
+        own = {k: v for k, v in asdict(stage.cfg).items() if k != "out" and (k != "init" or stage.plan.index == 1)}
+        values = {"name": stage.plan.name, "resume": stage.plan.resume, "stop_at": stage.plan.stop_at, **own}
+        parts.append(f"# stage {stage.plan.index}: {stage.cfg.out}\n" + format_toml(values, "[[stages]]"))
+    return "\n".join(parts)
+
+
+def recipe_line(stage: Stage, trainer: Trainer | None, count: int) -> str:
+    """Where a staged run stands: the stage it stopped in, or the final state to export."""
+    if trainer is not None and trainer.step < (stage.plan.stop_at or stage.cfg.steps):
+        return (f"stage {stage.plan.index}/{count} '{stage.plan.name}' stopped at step {trainer.step}/"
+                f"{stage.cfg.steps}; resume with the same command (state in {Path(stage.cfg.out) / 'last.pt'})")
+    if stage.plan.index < count or not stage.finished:
+        return f"stopped before stage {stage.plan.index}/{count} '{stage.plan.name}'; resume with the same command"
+    return f"all {count} stages done: export {stage.result} with dadiff-export"
+
+
+def main_recipe(args: Any, recipe: list[Stage]) -> int:
+    """`dadiff-train` on a staged config (one process): every stage in order, resumable."""
+    if args.seed is not None:
+        raise ValueError(f"{args.config}: --seed applies to a config without stages; each stage sets its own seed")
+    if args.show_config:
+        print(show_recipe(recipe), end="")
+        return 0
+    stage, trainer = run_recipe(recipe, args.max_steps, args.device, args.max_minutes)
+    print(f"dadiff-train: {recipe_line(stage, trainer, len(recipe))}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        cfg = TrainConfig.from_toml(args.config)
-        if args.out:
-            cfg.out = args.out
+        recipe = load_recipe(args.config, args.out)
+        if recipe[0].plan.name:
+            return main_recipe(args, recipe)
+        cfg = recipe[0].cfg
         if args.seed is not None:
             cfg.seed = args.seed
         if args.show_config:

@@ -84,10 +84,10 @@ def _toml_value(value: Any) -> str:
     return "[" + ", ".join(_toml_value(v) for v in value) + "]"
 
 
-def format_toml(values: dict[str, Any]) -> str:
-    """`values` as one [train] table that reads back to the same keys; TOML has no null, so a key set to
-    None is written as a comment."""
-    lines = ["[train]"]
+def format_toml(values: dict[str, Any], header: str = "[train]") -> str:
+    """`values` as one table (`header`: [train], or [[stages]] for a stage) that reads back to the same keys;
+    TOML has no null, so a key set to None is written as a comment."""
+    lines = [header]
     for key, value in values.items():
         lines.append(f"# {key}: not set" if value is None else f"{key} = {_toml_value(value)}")
     return "\n".join(lines) + "\n"
