@@ -3,14 +3,14 @@
 # checkpoint back. That machine has PyTorch, OpenCV and scikit-image but no registry and not this package,
 # and takes at most 64 MiB of working tree, so a run goes in two steps:
 #
-#   here:   bash export/device_train.sh prepare runs/mobile-baseline
+#   here:   bash export/device_train.sh prepare runs/lite-baseline
 #           -> .device/: a 16 MiB library pack, the NanoTrack v3 teacher (used where onnxruntime is there), tqdm,
 #              and the run's last.pt (the folder is git-ignored; carry it)
-#   device: run(command="bash export/device_train.sh train export/configs/mobile-baseline.toml 8",
+#   device: run(command="bash export/device_train.sh train export/configs/lite-baseline.toml 8",
 #               carry=[".device"], timeout_s=600)
 #           -> trains for 8 minutes on the GPU (batch and workers scaled up), writes $OUT/last.pt, log.csv;
 #              shows dadiff-train's own lines (an error, where it stopped) and exits with its exit code
-#   here:   bash export/device_train.sh merge <files_at> runs/mobile-baseline
+#   here:   bash export/device_train.sh merge <files_at> runs/lite-baseline
 #           -> last.pt (final.pt, final-ema.pt once finished) into the run folder, and the device's log.csv rows
 #              appended to its log.csv (replacing rows from the step the device resumed at on);
 #              dadiff-train --config ... resumes from it

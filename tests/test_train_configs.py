@@ -1,5 +1,6 @@
-"""The example training configs README lists: each one loads, builds its network config and starts from
-something that exists (ImageNet, a committed state in export/resume, or another config's final.pt)."""
+"""The shipped training configs: each one (each stage of a staged recipe) loads, builds its network config and
+starts from something that exists (ImageNet, a committed state in export/resume, another config's final.pt or
+the previous stage's final state)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 
 pytest.importorskip("torch")
 
-from dadiff.export.train import TrainConfig, model_config  # noqa: E402
+from dadiff.export.train import load_recipe, model_config  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((REPO / "export" / "configs").glob("*.toml"))
@@ -24,7 +25,8 @@ def _outs() -> dict[str, list[str]]:
     outs: dict[str, list[str]] = {}
     for path in CONFIGS:
         try:
-            outs.setdefault(TrainConfig.from_toml(path).out, []).append(path.name)
+            for stage in load_recipe(path):
+                outs.setdefault(stage.cfg.out, []).append(path.name)
         except ValueError:
             continue
     return outs
@@ -32,13 +34,32 @@ def _outs() -> dict[str, list[str]]:
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)
 def test_config_loads_and_starts_from_something_that_exists(path: Path) -> None:
-    cfg = TrainConfig.from_toml(path)
-    assert model_config(cfg).family == cfg.family
-    if cfg.init == "imagenet":
-        return
-    init = Path(cfg.init)
-    chained = init.name == "final.pt" and str(init.parent) in _outs() and str(init.parent) != cfg.out
-    assert (REPO / init).is_file() or chained, f"{path.name}: init {cfg.init} is neither committed nor a run's final.pt"
+    recipe = load_recipe(path)
+    for before, stage in zip([None, *recipe], recipe, strict=False):
+        cfg = stage.cfg
+        assert model_config(cfg).family == cfg.family
+        if before is not None:  # a later stage starts from the previous one's final state
+            assert cfg.init == str(before.result) and before.result.parent == Path(before.cfg.out)
+            continue
+        if cfg.init == "imagenet":
+            continue
+        init = Path(cfg.init)
+        chained = init.name == "final.pt" and str(init.parent) in _outs() and str(init.parent) != cfg.out
+        assert (REPO / init).is_file() or chained, f"{path.name}: init {cfg.init} is neither committed nor a final.pt"
+
+
+def test_the_default_and_its_ablation_are_one_command_each() -> None:
+    """The default's recipe from ImageNet, and its ablation the same stages without the DaDiff block."""
+    default, ablation = (load_recipe(REPO / "export" / "configs" / name)
+                         for name in ("dadiff-mobile.toml", "dadiff-mobile-no-dadiff.toml"))
+    assert default[0].cfg.init == ablation[0].cfg.init == "imagenet" and len(default) == len(ablation) == 10
+    assert default[-1].result.name == ablation[-1].result.name == "final-ema.pt"
+    joined = next(i for i, stage in enumerate(default) if stage.cfg.stage == "dadiff")
+    assert all(stage.cfg.stage == "baseline" for stage in ablation) and joined == 3
+    for ours, twin in zip(default[joined:], ablation[joined:], strict=True):  # same data, seed, steps, schedule
+        same = ("day", "seed", "steps", "lr", "night_pairs", "night_path_lamps", "lambda_side", "ema_decay")
+        assert all(getattr(ours.cfg, k) == getattr(twin.cfg, k) for k in same), ours.plan.name
+        assert ours.plan.stop_at == twin.plan.stop_at
 
 
 def test_every_config_writes_its_own_run_folder() -> None:
