@@ -2,7 +2,8 @@
 
 A shipped model is a folder under this package holding `template.onnx` and `search.onnx` (the layout of
 docs/model-format.md) and its MODEL_CARD.md. `DEFAULT_MODEL` names the one used when no model is given:
-the trained dadiff-mobile in models/dadiff-mobile (models/dadiff-lite, the earlier default, ships too).
+the trained dadiff-mobile in models/dadiff-mobile. Its checkpoint.pt (what dadiff-export needs to re-make the
+graphs) stays in the repository, out of the installed package: the runtime reads only the graphs.
 """
 
 from __future__ import annotations

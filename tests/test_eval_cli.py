@@ -229,7 +229,7 @@ def test_run_without_a_model_explains_that_none_ships(bench, tmp_path, capsys, n
 def test_sequence_filter_does_not_swallow_result_folders(bench, tmp_path, capsys):
     results = tmp_path / "results"
     assert main(["run", "--dataset", str(bench), "--results", str(results), "--tracker", "dadiff",
-                 "--model", "dadiff-lite", "--no-progress", "--no-plots"]) == 0
+                 "--model", "dadiff-mobile", "--no-progress", "--no-plots"]) == 0
     capsys.readouterr()
     folder = results / bench.name
     assert main(["score", "--dataset", str(bench), "--sequences", "*_night", "--sequences", "*_day",
@@ -249,14 +249,14 @@ def _status(argv: list[str]) -> int:
 def test_run_name_must_be_one_folder_name(bench, tmp_path, capsys, name):
     results = tmp_path / "deep" / "results"
     assert _status(["run", "--dataset", str(bench), "--results", str(results), "--tracker", "dadiff",
-                    "--model", "dadiff-lite", "--name", name, "--no-progress", "--no-plots"]) == 2
+                    "--model", "dadiff-mobile", "--name", name, "--no-progress", "--no-plots"]) == 2
     assert "argument --name: expected a folder name" in _one_error_line(capsys)
     assert list(tmp_path.rglob("*")) == []  # was: ../../evil beside the results, "" the model's name
 
 
 def test_run_and_score_outputs_never_land_in_the_dataset(bench, tmp_path, capsys):
     before = {p: p.read_bytes() for p in bench.rglob("*") if p.is_file()}
-    run = ["run", "--dataset", str(bench), "--tracker", "dadiff", "--model", "dadiff-lite", "--no-progress"]
+    run = ["run", "--dataset", str(bench), "--tracker", "dadiff", "--model", "dadiff-mobile", "--no-progress"]
     assert main([*run, "--results", str(bench.parent), "--no-plots"]) == 2  # <results>/bench/<name> is in bench
     assert "--results lies inside the input folder" in _one_error_line(capsys)
     assert main([*run, "--results", str(tmp_path / "r"), "--plots", str(bench / "seq001_day" / "img")]) == 2

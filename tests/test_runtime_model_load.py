@@ -35,7 +35,7 @@ def test_no_default_model_shipped_yet(no_shipped_model) -> None:
 def test_resolve_paths(good: Path, tmp_path: Path) -> None:
     assert models.resolve(good) == good
     assert models.resolve(str(good / "template.onnx")) == good
-    with pytest.raises(models.ModelNotFoundError, match="model .nope. not found.*shipped: dadiff-lite, dadiff-mobile"):
+    with pytest.raises(models.ModelNotFoundError, match="model .nope. not found.*shipped: dadiff-mobile"):
         models.resolve("nope")
     text = tmp_path / "notes.txt"
     text.write_text("x")
