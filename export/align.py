@@ -97,24 +97,10 @@ class TrackingOrientedEncoderLayer(nn.Module):
 class TrackingOrientedLayer(nn.Module):
     """The paper's layer (used by dadiff-lite): maps (B, C, H, W) to aligned features of the same shape."""
 
-    def __init__(self, d_model: int, heads: int, ffn: int, reduction: int = 8, template: bool = False,
-                 template_gate: float = 0.0) -> None:
+    def __init__(self, d_model: int, heads: int, ffn: int, reduction: int = 8) -> None:
         super().__init__()
         self.row_embed, self.col_embed = position_tables(d_model)
         self.layer = TrackingOrientedEncoderLayer(d_model, heads, ffn, reduction)
-        if template:  # ours (`align_template`): the search side also reads the template, through a gate
-            self.template_attn = nn.MultiheadAttention(d_model, heads, dropout=0.1, batch_first=True)
-            self.norm_template = nn.LayerNorm(d_model)
-            self.template_scale = nn.Parameter(torch.full((1, d_model, 1, 1), float(template_gate)))
-
-    def read_template(self, out: torch.Tensor, template: torch.Tensor) -> torch.Tensor:
-        """What the layer's search output `out` (B, C, H, W) takes from the template's aligned features
-        (B, C, h, w), gated: attention of the search positions over the template's (no position code on the
-        template's side, whose layout is not the search map's). The network adds it to the head's input."""
-        b, c, h, w = out.shape
-        keys = self.norm_template(template.flatten(2).transpose(1, 2))
-        read = attend(self.template_attn, out.flatten(2).transpose(1, 2), keys, self.training)
-        return self.template_scale * read.transpose(1, 2).reshape(b, c, h, w)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         b, c, h, w = x.shape

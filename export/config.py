@@ -14,10 +14,8 @@ LITE0_TRUNKS: dict[str, tuple[int, int | None, tuple[int, ...]]] = {
     "efficientnet-lite0": (10, 5, (7, 10)),      # stride 8 (atrous from block 5), blocks 7 + 10 fused
     "efficientnet-lite0-s16": (6, None, (6,)),   # stride 16, stops in stage 3 (80 channels)
 }
-FINE_SKIP_BACKBONE = "efficientnet-lite0-s16"  # `fine_skip` folds its block 4 (stride 8, 40 channels) into 16 px cells
-FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS = 4, 40
 # Output stride of each trunk: stem 2 x each subsampling block (tests/test_export_bad_input.py checks the Lite0
-# ones against the trunks). The tracker's stride is this over head_upsample; another one decodes boxes wrongly.
+# ones against the trunks). The tracker's stride is this; another one decodes boxes wrongly.
 BACKBONE_STRIDES = {"resnet50-atrous": 8, GAT_BACKBONE: 8, "efficientnet-lite0": 8, "efficientnet-lite0-s16": 16}
 
 # [lr, penalty_k, window_influence] of the released test script (spec 8.4).
@@ -81,27 +79,21 @@ class ModelConfig:
     align_heads: int = 8
     align_ffn: int = 2048
     head_search_padding: int = 0       # padding of the head's search-side 3x3 convs (keeps a small map's size)
-    head_upsample: int = 1             # the head answers on a grid this many times finer (tracker.stride / it)
-    antialias_blocks: tuple[int, ...] = ()  # Lite0 stride-2 blocks that blur before subsampling (ours)
-    fine_skip: bool = False            # stride-8 block 4, space-to-depth, added to the neck through a gate (ours)
-    align_template: bool = False       # the search side's tracking-oriented layer also attends to the template (ours)
-    align_template_gate: float = 0.0   # its gate where no state sets it (0: a trained block keeps its output)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["level_names"] = list(self.level_names)
         d["backbone_channels"] = list(self.backbone_channels)
-        d["antialias_blocks"] = list(self.antialias_blocks)
         return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
+        d = without_retired(d)
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"unknown model config keys: {', '.join(unknown)}")
-        d = dict(d)
         if "tracker" not in d:  # guessing the crop geometry would export a model that decodes boxes wrongly
             raise ValueError("'tracker' is missing (the crop geometry: exemplar_size, instance_size, stride, ...)")
         raw_tracker = d.pop("tracker")
@@ -113,7 +105,6 @@ class ModelConfig:
         tracker = TrackerConfig(**raw_tracker)
         d["level_names"] = tuple(d["level_names"])
         d["backbone_channels"] = tuple(d["backbone_channels"])
-        d["antialias_blocks"] = _as_tuple(d.get("antialias_blocks", ()))
         return cls(tracker=tracker, **d)
 
     def with_steps(self, steps: int) -> ModelConfig:
@@ -175,14 +166,24 @@ _TRACKER_INTS = ("exemplar_size", "instance_size", "stride", "score_size")
 ALIGNS = ("released", "paper", "none")
 
 
-def _as_tuple(value: Any) -> Any:
-    """A TOML or JSON list as the tuple a frozen config holds; anything else as it is, for the checks."""
-    return tuple(value) if isinstance(value, list) else value
+# Keys of experiments that did not ship, which states saved before their removal hold at these values (the
+# only behaviour built now); another value names a network this version cannot build.
+RETIRED_KEYS: dict[str, Any] = {"head_upsample": 1, "antialias_blocks": [], "fine_skip": False,
+                                "align_template": False, "align_template_gate": 0.0}
+
+
+def without_retired(d: dict[str, Any]) -> dict[str, Any]:
+    """A stored model config without the retired keys; ValueError naming a key set to anything but its value."""
+    for key, value in RETIRED_KEYS.items():
+        if key in d and d[key] != value and not (key == "antialias_blocks" and list(d[key]) == value):
+            raise ValueError(f"'{key}' is {d[key]!r}: a retired experiment this version cannot build (only "
+                             f"{value!r}); export it with the dadiff release that trained it")
+    return {k: v for k, v in d.items() if k not in RETIRED_KEYS}
 
 
 def lite0_subsampling_blocks(backbone: str) -> tuple[int, ...]:
     """The stride-2 blocks a Lite0 trunk builds, as the trunk itself computes them."""
-    from .efficientnet_lite import subsampling_blocks  # torch; only a config that names such blocks needs it
+    from .efficientnet_lite import subsampling_blocks  # torch: the trunk's own rule
 
     last, dilate, _ = LITE0_TRUNKS[backbone]
     return subsampling_blocks(last, dilate)
@@ -215,7 +216,7 @@ def _check_model_fields(cfg: ModelConfig) -> None:
                          f"(below diffusion_total_steps {total}) or none")
     if cfg.align not in ALIGNS:
         raise ValueError(f"'align' is {cfg.align!r}; expected one of {', '.join(ALIGNS)}")
-    for name in ("use_dadiff", "align_residual", "denoiser_attention", "fine_skip", "align_template"):
+    for name in ("use_dadiff", "align_residual", "denoiser_attention"):
         if not isinstance(getattr(cfg, name), bool):
             raise ValueError(f"'{name}' is {getattr(cfg, name)!r}; expected true or false")
     levels = (cfg.level_names, cfg.backbone_channels)
@@ -226,35 +227,13 @@ def _check_model_fields(cfg: ModelConfig) -> None:
         raise ValueError(f"'level_names' / 'backbone_channels' must hold integers (>= 0 / >= 1), got {levels}")
     if (2 * cfg.denoiser_ch) % cfg.denoiser_groups or cfg.denoiser_ch % cfg.denoiser_groups:
         raise ValueError(f"'denoiser_groups' {cfg.denoiser_groups} does not divide 'denoiser_ch' {cfg.denoiser_ch}")
-    if not _is_number(cfg.align_template_gate):
-        raise ValueError(f"'align_template_gate' is {cfg.align_template_gate!r}; expected a number")
-    if cfg.align_template and cfg.align != "paper":
-        raise ValueError(f"'align_template' needs align = \"paper\" (the layer that attends), got {cfg.align!r}")
     if cfg.align != "none" and cfg.channels % cfg.align_heads:
         raise ValueError(f"'align_heads' {cfg.align_heads} does not divide 'channels' {cfg.channels}")
     if not _is_int(cfg.head_search_padding) or cfg.head_search_padding < 0:
         raise ValueError(f"'head_search_padding' is {cfg.head_search_padding!r}; expected an integer >= 0")
-    if not _is_int(cfg.head_upsample) or cfg.head_upsample < 1:
-        raise ValueError(f"'head_upsample' is {cfg.head_upsample!r}; expected an integer >= 1")
-    _check_antialias(cfg)
     if (cfg.family == GAT_FAMILY) != (cfg.backbone == GAT_BACKBONE):
         raise ValueError(f"'backbone' {cfg.backbone!r} does not fit family {cfg.family!r} ({GAT_BACKBONE} is "
                          f"{GAT_FAMILY}'s alone)")
-    if cfg.fine_skip and cfg.backbone != FINE_SKIP_BACKBONE:
-        raise ValueError(f"'fine_skip' needs the {FINE_SKIP_BACKBONE} trunk (dadiff-mobile), not {cfg.backbone}")
-
-
-def _check_antialias(cfg: ModelConfig) -> None:
-    blocks = cfg.antialias_blocks
-    if not isinstance(blocks, tuple) or not all(_is_int(b) for b in blocks):
-        raise ValueError(f"'antialias_blocks' is {blocks!r}; expected a list of block numbers")
-    if not blocks:
-        return
-    allowed = lite0_subsampling_blocks(cfg.backbone) if is_lite0(cfg.backbone) else ()
-    bad = [b for b in blocks if b not in allowed]
-    if bad:
-        raise ValueError(f"'antialias_blocks' is {list(blocks)}; {cfg.backbone} subsamples in blocks "
-                         f"{list(allowed) or 'none of ours'}")
 
 
 def _check_tracker_fields(tr: TrackerConfig) -> None:
@@ -298,33 +277,13 @@ def _check_tracker_against_model(cfg: ModelConfig) -> None:
         raise ValueError(f"'tracker.decoder' is {tr.decoder!r}; {cfg.family} outputs need "
                          f"{'siamgat' if cfg.family == GAT_FAMILY else 'siamban'}")
     trunk = BACKBONE_STRIDES[cfg.backbone]
-    if tr.stride * cfg.head_upsample != trunk:
-        real = f"{trunk // cfg.head_upsample}" if trunk % cfg.head_upsample == 0 else f"{trunk}/{cfg.head_upsample}"
-        raise ValueError(f"'tracker.stride' is {tr.stride}; the network ({cfg.backbone}, head_upsample "
-                         f"{cfg.head_upsample}) has stride {real}")
-
-
-def with_head_upsample(cfg: ModelConfig, upsample: int) -> ModelConfig:
-    """`cfg` with a head `upsample` times finer than the one it describes: the tracker's points are
-    stride / upsample apart, (S - 1) * upsample + 1 per side, and start where they started (same origin)."""
-    tr = cfg.tracker
-    if not _is_int(upsample) or upsample < 1 or tr.stride % upsample:
-        raise ValueError(f"'head_upsample' is {upsample!r}; expected an integer >= 1 that divides the stride "
-                         f"{tr.stride}")
-    if upsample == 1:
-        return cfg
-    fine = replace(tr, stride=tr.stride // upsample, score_size=(tr.score_size - 1) * upsample + 1)
-    return replace(cfg, head_upsample=cfg.head_upsample * upsample, tracker=fine)
+    if tr.stride != trunk:
+        raise ValueError(f"'tracker.stride' is {tr.stride}; the network ({cfg.backbone}) has stride {trunk}")
 
 
 def with_overrides(cfg: ModelConfig, overrides: dict[str, Any]) -> ModelConfig:
-    """`cfg` with a training config's `model = {...}` table applied; `head_upsample` moves the tracker's grid
-    along with the head (`with_head_upsample`)."""
-    rest = dict(overrides)
-    upsample = rest.pop("head_upsample", 1)
-    if "antialias_blocks" in rest:
-        rest["antialias_blocks"] = _as_tuple(rest["antialias_blocks"])
-    return with_head_upsample(replace(cfg, **rest), upsample)
+    """`cfg` with a training config's `model = {...}` table applied."""
+    return replace(cfg, **overrides)
 
 
 def tracker_metadata(tr: TrackerConfig) -> dict[str, str]:

@@ -13,7 +13,6 @@ the preprocessing the weights were trained with.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 # The pretrained weights are a direct conversion of the TF checkpoint (no fine-tuning in PyTorch), so they
@@ -99,32 +98,8 @@ def _conv_bn(
     return conv, nn.BatchNorm2d(cout, eps=BN_EPS, momentum=BN_MOMENTUM)
 
 
-class BlurDownsample(nn.Module):
-    """A fixed 3 x 3 binomial low-pass, then every second pixel: anti-aliased subsampling.
-
-    Zhang, "Making convolutional networks shift-invariant again" (ICML 2019): a strided conv samples its
-    output without a low-pass first, so a target moved by half a cell changes the features more than by a
-    whole one; blurring before subsampling keeps them closer. The kernel is a non-persistent buffer, so the
-    state_dict keys stay those of the pretrained file and of checkpoints made without it.
-    """
-
-    def __init__(self, channels: int) -> None:
-        super().__init__()
-        taps = torch.tensor([1.0, 2.0, 1.0])
-        kernel = (taps[:, None] * taps[None, :]) / 16.0
-        self.register_buffer("kernel", kernel.expand(channels, 1, 3, 3).clone(), persistent=False)
-        self.channels = channels
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return F.conv2d(x, self.kernel, stride=2, padding=1, groups=self.channels)
-
-
 class MBConvBlock(nn.Module):
-    """Mobile inverted bottleneck without squeeze-excitation: 1x1 expand, depthwise kxk, 1x1 project.
-
-    ``antialias`` (a stride-2 block only): the depthwise conv runs at stride 1 and its activated output is
-    blurred and subsampled (`BlurDownsample`), Zhang's ConvBlurPool; same weights, same output size.
-    """
+    """Mobile inverted bottleneck without squeeze-excitation: 1x1 expand, depthwise kxk, 1x1 project."""
 
     def __init__(
         self,
@@ -135,29 +110,22 @@ class MBConvBlock(nn.Module):
         expand: int,
         dilation: int = 1,
         residual: bool = False,
-        antialias: bool = False,
     ) -> None:
         super().__init__()
-        if antialias and stride != 2:
-            raise ValueError(f"antialias needs a stride-2 block, got stride {stride}")
         mid = cin * expand
         self.has_expand = expand != 1
         if self.has_expand:
             self._expand_conv, self._bn0 = _conv_bn(cin, mid, 1)
-        self._depthwise_conv, self._bn1 = _conv_bn(mid, mid, kernel, 1 if antialias else stride, dilation,
-                                                   groups=mid)
+        self._depthwise_conv, self._bn1 = _conv_bn(mid, mid, kernel, stride, dilation, groups=mid)
         self._project_conv, self._bn2 = _conv_bn(mid, cout, 1)
         self.act = nn.ReLU6()
         self.residual = residual
-        self.blur = BlurDownsample(mid) if antialias else None
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = x
         if self.has_expand:
             y = self.act(self._bn0(self._expand_conv(y)))
         y = self.act(self._bn1(self._depthwise_conv(y)))
-        if self.blur is not None:
-            y = self.blur(y)
         y = self._bn2(self._project_conv(y))  # linear bottleneck: no activation
         return y + x if self.residual else y
 
@@ -173,7 +141,6 @@ class EfficientNetLite0(nn.Module):
             their stride (Siamese trackers stop before them via ``last_block``).
         out_blocks: blocks whose outputs ``forward`` returns, in this order.
         with_head: build conv_head/bn/fc and make ``forward`` return ImageNet logits (needs last_block=15).
-        antialias_blocks: stride-2 blocks whose subsampling is anti-aliased (`MBConvBlock`'s ``antialias``).
 
     ``forward`` expects raw BGR pixels 0..255, float32 NCHW; normalisation happens inside (see PIXEL_MEAN).
     """
@@ -184,7 +151,6 @@ class EfficientNetLite0(nn.Module):
         dilate_from_block: int | None = None,
         out_blocks: tuple[int, ...] = (15,),
         with_head: bool = False,
-        antialias_blocks: tuple[int, ...] = (),
     ) -> None:
         super().__init__()
         if not 0 <= last_block < NUM_BLOCKS:
@@ -201,10 +167,6 @@ class EfficientNetLite0(nn.Module):
             bad = [b for b in out_blocks if not 0 <= b <= last_block]
             if bad:
                 raise ValueError(f"out_blocks {bad} outside the built blocks 0..{last_block}")
-        strided = subsampling_blocks(last_block, dilate_from_block)
-        bad = [b for b in antialias_blocks if b not in strided]
-        if bad:
-            raise ValueError(f"antialias_blocks {bad}: not a stride-2 block of this trunk (those are {list(strided)})")
         self.last_block = last_block
         self.dilate_from_block = dilate_from_block
         self.out_blocks = tuple(out_blocks)
@@ -225,8 +187,7 @@ class EfficientNetLite0(nn.Module):
                 dilation = 2
                 if i == dilate_from_block:
                     stride = 1
-            blocks.append(MBConvBlock(kernel, stride, cin, cout, expand, dilation, residual,
-                                      antialias=i in antialias_blocks))
+            blocks.append(MBConvBlock(kernel, stride, cin, cout, expand, dilation, residual))
         self._blocks = nn.ModuleList(blocks)
 
         if with_head:

@@ -2,10 +2,6 @@
 
 The template-side convolutions (`conv_kernel`) depend only on the template, so they are split out and run
 once per sequence (`kernels`); `forward` takes those kernels and the search features (spec 5.5).
-
-`upsample` (ours) refines the grid of points the head answers on: the correlation map is interpolated to
-(S - 1) * upsample + 1 points per side before the head's 1x1 layers, so a stride-16 network regresses its
-box from points 8 px apart. The coarse points keep their exact values, so a trained head starts from itself.
 """
 
 from __future__ import annotations
@@ -28,44 +24,33 @@ def xcorr_depthwise(search: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     return out.reshape(b, c, out.shape[2], out.shape[3])
 
 
-def refine_grid(x: torch.Tensor, upsample: int) -> torch.Tensor:
-    """Bilinear interpolation onto a grid `upsample` times finer that keeps the corner points in place."""
-    if upsample == 1:
-        return x
-    h, w = x.shape[-2:]
-    return F.interpolate(x, size=((h - 1) * upsample + 1, (w - 1) * upsample + 1), mode="bilinear",
-                         align_corners=True)
-
-
 class DepthwiseBAN(nn.Module):
-    def __init__(self, in_ch: int, hidden: int, out_ch: int, search_padding: int = 0, upsample: int = 1) -> None:
+    def __init__(self, in_ch: int, hidden: int, out_ch: int, search_padding: int = 0) -> None:
         super().__init__()
-        self.upsample = upsample
         self.conv_kernel = conv_bn_relu(in_ch, hidden, 3)
         self.conv_search = conv_bn_relu(in_ch, hidden, 3, search_padding)
         self.head = nn.Sequential(nn.Conv2d(hidden, hidden, 1, bias=False), nn.BatchNorm2d(hidden),
                                   nn.ReLU(inplace=True), nn.Conv2d(hidden, out_ch, 1))
 
     def forward(self, search: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
-        return self.head(refine_grid(xcorr_depthwise(self.conv_search(search), kernel), self.upsample))
+        return self.head(xcorr_depthwise(self.conv_search(search), kernel))
 
 
 class BoxLevel(nn.Module):
-    def __init__(self, in_ch: int, hidden: int, search_padding: int = 0, upsample: int = 1) -> None:
+    def __init__(self, in_ch: int, hidden: int, search_padding: int = 0) -> None:
         super().__init__()
-        self.cls = DepthwiseBAN(in_ch, hidden, 2, search_padding, upsample)
-        self.loc = DepthwiseBAN(in_ch, hidden, 4, search_padding, upsample)
+        self.cls = DepthwiseBAN(in_ch, hidden, 2, search_padding)
+        self.loc = DepthwiseBAN(in_ch, hidden, 4, search_padding)
 
 
 class MultiBAN(nn.Module):
     """cls = sum_l softmax(cls_weight)_l cls_l; loc = sum_l softmax(loc_weight)_l exp(loc_scale_l loc_l)."""
 
-    def __init__(self, level_names: tuple[int, ...], in_ch: int, hidden: int, search_padding: int = 0,
-                 upsample: int = 1) -> None:
+    def __init__(self, level_names: tuple[int, ...], in_ch: int, hidden: int, search_padding: int = 0) -> None:
         super().__init__()
         self.level_names = level_names
         for name in level_names:
-            self.add_module(f"box{name}", BoxLevel(in_ch, hidden, search_padding, upsample))
+            self.add_module(f"box{name}", BoxLevel(in_ch, hidden, search_padding))
         n = len(level_names)
         self.cls_weight = nn.Parameter(torch.ones(n))
         self.loc_weight = nn.Parameter(torch.ones(n))

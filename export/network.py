@@ -13,10 +13,10 @@ import torch
 from torch import nn
 
 from .align import ReleasedAlignLayer, TrackingOrientedLayer
-from .config import FINE_SKIP_BLOCK, FINE_SKIP_CHANNELS, GAT_FAMILY, LITE0_TRUNKS, ModelConfig, is_lite0
+from .config import GAT_FAMILY, LITE0_TRUNKS, ModelConfig, is_lite0
 from .denoiser import DDIMSampler, Denoiser
 from .head import MultiBAN
-from .neck import AdjustAllLayer, FineSkip
+from .neck import AdjustAllLayer
 from .resnet import AtrousResNet50
 
 
@@ -36,10 +36,7 @@ def build_backbone(cfg: ModelConfig) -> nn.Module:
         from .efficientnet_lite import EfficientNetLite0
 
         last, dilate, outs = LITE0_TRUNKS[cfg.backbone]
-        if cfg.fine_skip:
-            outs = (FINE_SKIP_BLOCK, *outs)
-        return EfficientNetLite0(last_block=last, dilate_from_block=dilate, out_blocks=outs,
-                                 antialias_blocks=cfg.antialias_blocks)
+        return EfficientNetLite0(last_block=last, dilate_from_block=dilate, out_blocks=outs)
     raise ValueError(f"unknown backbone {cfg.backbone!r}")
 
 
@@ -50,8 +47,6 @@ class DaDiffNet(nn.Module):
         c = cfg.channels
         self.backbone = build_backbone(cfg)
         self.neck = AdjustAllLayer(cfg.level_names, cfg.backbone_channels, c, cfg.template_feature_size)
-        if cfg.fine_skip:
-            self.fine_skip = FineSkip(FINE_SKIP_CHANNELS, c, cfg.template_feature_size)
         self.diffusion = Denoiser(2 * c, cfg.denoiser_ch, c, cfg.denoiser_res_blocks, cfg.denoiser_attention,
                                   cfg.denoiser_groups)
         self.sampler = DDIMSampler(cfg.diffusion_total_steps, cfg.ddim_steps, cfg.ddim_start_t)
@@ -65,30 +60,21 @@ class DaDiffNet(nn.Module):
             self.register_buffer("e_zf", e_zf)
             self.register_buffer("e_xf", e_xf)
             if cfg.align == "paper":
-                self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn,
-                                                         template=cfg.align_template,
-                                                         template_gate=cfg.align_template_gate)
+                self.align_track = TrackingOrientedLayer(c, cfg.align_heads, cfg.align_ffn)
             elif cfg.align == "none":
                 self.align_track = nn.Identity()
             else:
                 raise ValueError(f"unknown alignment layer {cfg.align!r}")
         if cfg.align_residual:  # LayerScale-style gate: the block starts as the identity of the tracker it joins
             self.align_scale = nn.Parameter(torch.zeros(1, c, 1, 1))
-        self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden, cfg.head_search_padding,
-                             cfg.head_upsample)
-
-    def trunk(self, img: torch.Tensor) -> tuple[torch.Tensor | None, list[torch.Tensor]]:
-        """(the stride-8 map for `fine_skip` or None, the levels the neck takes)."""
-        feats = self.backbone(img)
-        fine = None
-        if self.cfg.fine_skip:
-            fine, *feats = feats
-        if is_lite0(self.cfg.backbone) and len(feats) > 1:
-            feats = [torch.cat(feats, dim=1)]  # one fused level
-        return fine, feats
+        self.head = MultiBAN(cfg.level_names, c, cfg.head_hidden, cfg.head_search_padding)
 
     def backbone_features(self, img: torch.Tensor) -> list[torch.Tensor]:
-        return self.trunk(img)[1]
+        """The levels the neck takes (a Lite0 trunk's output blocks fused into one)."""
+        feats = self.backbone(img)
+        if is_lite0(self.cfg.backbone) and len(feats) > 1:
+            feats = [torch.cat(feats, dim=1)]  # one fused level
+        return feats
 
     def diffuse(self, neck: list[torch.Tensor], noise: torch.Tensor) -> list[list[torch.Tensor]]:
         """Run the sampler on every level; levels of one shape go through the denoiser as one batch."""
@@ -99,36 +85,23 @@ class DaDiffNet(nn.Module):
             return [[s[i * n:(i + 1) * n] for s in states] for i in range(len(neck))]
         return [self.sampler(self.diffusion, f, noise.expand(n, -1, -1, -1)) for f in neck]
 
-    def branch(self, img: torch.Tensor, noise: torch.Tensor, template: bool,
-               template_features: list[torch.Tensor] | None = None) -> BranchOutput:
-        """`template_features`: the template's aligned features per level, which the search side's layer reads
-        when the model is built with `align_template` (ignored otherwise)."""
-        fine, feats = self.trunk(img)
-        neck = self.neck(feats, template)
-        if fine is not None:
-            neck = [neck[0] + self.fine_skip(fine, template)]
+    def branch(self, img: torch.Tensor, noise: torch.Tensor, template: bool) -> BranchOutput:
+        neck = self.neck(self.backbone_features(img), template)
         if not self.cfg.use_dadiff:
             return BranchOutput(neck, [[f] for f in neck], neck)
         states = self.diffuse(neck, noise)
-        layer_out = [self.align_track(s[-1]) for s in states]
-        aligned = layer_out
+        aligned = [self.align_track(s[-1]) for s in states]
         if self.cfg.align_residual:
-            aligned = [n + self.align_scale * a for n, a in zip(neck, layer_out, strict=True)]
-        if self.cfg.align_template and template_features is not None:
-            aligned = [f + self.align_track.read_template(a, z)
-                       for f, a, z in zip(aligned, layer_out, template_features, strict=True)]
+            aligned = [n + self.align_scale * a for n, a in zip(neck, aligned, strict=True)]
         return BranchOutput(neck, states, aligned)
 
     def template_branch(self, z: torch.Tensor) -> BranchOutput:
         """The branch on a template crop: its own start noise, the neck's centre crop."""
         return self.branch(z, self.e_zf, template=True)
 
-    def search_branch(self, x: torch.Tensor, template_features: list[torch.Tensor] | None = None) -> BranchOutput:
-        """The branch on a search crop: its own start noise, the whole map (and the template's aligned
-        features, which a model with `align_template` needs)."""
-        if self.reads_template() and template_features is None:
-            raise ValueError("this model's search side reads the template: pass its aligned features")
-        return self.branch(x, self.e_xf, template=False, template_features=template_features)
+    def search_branch(self, x: torch.Tensor) -> BranchOutput:
+        """The branch on a search crop: its own start noise, the whole map."""
+        return self.branch(x, self.e_xf, template=False)
 
     def template(self, z: torch.Tensor) -> list[torch.Tensor]:
         """Aligned template features per level (what the head receives)."""
@@ -140,19 +113,19 @@ class DaDiffNet(nn.Module):
         return zf, kcls, kloc
 
     def reads_template(self) -> bool:
-        """Whether the search side takes the template's aligned features besides the head's kernels."""
-        return self.cfg.use_dadiff and self.cfg.align_template
+        """Whether the search graph takes the template's features besides the head's kernels (DaDiff-GAT's
+        does; this network's search side reads the kernels alone)."""
+        return False
 
-    def track(self, x: torch.Tensor, kcls: list[torch.Tensor], kloc: list[torch.Tensor],
-              zf: list[torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        xf = self.search_branch(x, zf).aligned
-        return self.head(xf, kcls, kloc)
+    def track(self, x: torch.Tensor, kcls: list[torch.Tensor], kloc: list[torch.Tensor]
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.head(self.search_branch(x).aligned, kcls, kloc)
 
     def forward(self, z: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Template + search in one call (training and tests)."""
         zf = self.template(z)
         kcls, kloc = self.head.kernels(zf)
-        return self.track(x, kcls, kloc, zf)
+        return self.track(x, kcls, kloc)
 
 
 def build_model(cfg: ModelConfig, pretrained_backbone: bool = False) -> DaDiffNet:

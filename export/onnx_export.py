@@ -124,7 +124,7 @@ class SearchGraph(nn.Module):
         kcls, kloc, zf = self.layout.split_search_args(kernels)
         if self.layout.roi:
             return self.net.track(x, zf[0])
-        return self.net.track(x, kcls, kloc, zf)
+        return self.net.track(x, kcls, kloc)
 
 
 def model_metadata(loaded: LoadedCheckpoint, name: str, opset: int) -> dict[str, str]:

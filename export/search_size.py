@@ -38,7 +38,7 @@ def _score_side(net: nn.Module, exemplar: int, size: int) -> int:
     with torch.no_grad():
         zf = net.template(torch.zeros(1, 3, exemplar, exemplar))
         kcls, kloc = net.head.kernels(zf)
-        cls, _ = net.track(torch.zeros(1, 3, size, size), kcls, kloc, zf)
+        cls, _ = net.track(torch.zeros(1, 3, size, size), kcls, kloc)
     return cls.shape[-1]
 
 
@@ -61,7 +61,7 @@ def with_search_size(loaded: LoadedCheckpoint, size: int) -> LoadedCheckpoint:
         raise CheckpointError(
             f"search size {size} is larger than this {cfg.family} checkpoint's {tr.instance_size} px: its stored "
             f"search start noise covers that map only; export from a checkpoint at {size} px (a training state)")
-    allowed = search_sizes(tr.instance_size, tr.stride * cfg.head_upsample, tr.exemplar_size)  # the map's cells
+    allowed = search_sizes(tr.instance_size, tr.stride, tr.exemplar_size)  # the map's cells
     if size not in allowed:
         raise CheckpointError(
             f"search size {size} does not fit this {cfg.family} checkpoint (search crop {tr.instance_size} px, "

@@ -53,13 +53,8 @@ class NanoTrackTeacher:
         return self._features(canvas)[:, 4:12, 4:12]
 
     @torch.no_grad()
-    def __call__(self, z: torch.Tensor, x: torch.Tensor, score_size: int,
-                 upsample: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """`upsample` > 1: the student's head answers on a finer grid (`head_upsample`); the teacher's
-        maps are carried onto it by `refine_teacher_maps`."""
-        if upsample > 1:
-            feats, prob, loc = self(z, x, (score_size - 1) // upsample + 1)
-            return (feats, *refine_teacher_maps(prob, loc, upsample))
+    def __call__(self, z: torch.Tensor, x: torch.Tensor,
+                 score_size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         if x.shape[-2:] != (TEACHER_SIZE, TEACHER_SIZE):
             raise TeacherError(f"the teacher needs {TEACHER_SIZE} x {TEACHER_SIZE} search crops, got {tuple(x.shape)}")
         if score_size % 2 == 0 or score_size > TEACHER_SCORE:
@@ -76,22 +71,3 @@ class NanoTrackTeacher:
         return (torch.from_numpy(np.stack(feats)), torch.from_numpy(np.stack(probs)),
                 torch.from_numpy(np.stack(locs)))
 
-
-def refine_teacher_maps(prob: torch.Tensor, loc: torch.Tensor, upsample: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The teacher's (B, S, S) probability and (B, 4, S, S) box distances on a grid `upsample` times finer.
-
-    The probability is interpolated as it stands. Distances belong to their own point, so each coarse
-    point's box edges (its offset minus l, plus r, ...) are interpolated and measured again from the fine
-    point; a fine point outside the box gets a tiny distance there (the loss only reads sure points).
-    """
-    side = (prob.shape[-1] - 1) * upsample + 1
-    fine = dict(size=(side, side), mode="bilinear", align_corners=True)
-    prob_f = torch.nn.functional.interpolate(prob[:, None], **fine)[:, 0]
-    coarse_pos = torch.arange(prob.shape[-1], dtype=loc.dtype) * TEACHER_STRIDE
-    fine_pos = torch.arange(side, dtype=loc.dtype) * (TEACHER_STRIDE / upsample)
-    cx, cy = coarse_pos.view(1, 1, -1), coarse_pos.view(1, -1, 1)
-    edges = torch.stack([cx - loc[:, 0], cy - loc[:, 1], cx + loc[:, 2], cy + loc[:, 3]], dim=1)
-    e = torch.nn.functional.interpolate(edges, **fine)
-    fx, fy = fine_pos.view(1, 1, -1), fine_pos.view(1, -1, 1)
-    loc_f = torch.stack([fx - e[:, 0], fy - e[:, 1], e[:, 2] - fx, e[:, 3] - fy], dim=1).clamp_min(1e-3)
-    return prob_f, loc_f

@@ -58,7 +58,6 @@ from .weight_average import WeightAverage
 
 DAY, NIGHT = 0.0, 1.0
 DADIFF_BLOCK = ("diffusion.", "align_track.", "align_scale")  # parameter names of the DaDiff block
-TEMPLATE_READ = ("align_track.template_", "align_track.norm_template.")  # the block's reading of the template
 
 
 @dataclass
@@ -77,7 +76,6 @@ class TrainConfig:
     lr: float = 0.0015                    # DaDiff base lr (paper)
     backbone_lr_mult: float = 0.1
     dadiff_lr_mult: float = 1.0           # the DaDiff block's factor (denoiser, tracking-oriented layer, gate)
-    template_lr_mult: float = 1.0         # the template reading's factor (`align_template`: its attention and gate)
     warmup_steps: int = 50
     weight_decay: float = 1e-4
     freeze_backbone_blocks: int = 5       # EfficientNet-Lite0 blocks 0..N-1 stay ImageNet
@@ -172,9 +170,8 @@ def build_network(cfg: TrainConfig) -> DaDiffNet:
     source = loaded.model.state_dict()  # strict for the checkpoint's own config
     own = net.state_dict()
     # the stages share every key; an ablation without the tracking-oriented layer only drops align_track.*, and
-    # a residual DaDiff block joining a trained tracker adds its gate align_scale (from 0), and fine_skip its
-    # branch (gated from 0 too)
-    optional = {k for k in set(source) | set(own) if k.startswith(("align_track.", "fine_skip.")) or k == "align_scale"}
+    # a residual DaDiff block joining a trained tracker adds its gate align_scale (from 0)
+    optional = {k for k in set(source) | set(own) if k.startswith("align_track.") or k == "align_scale"}
     missing, unexpected = sorted(set(own) - set(source) - optional), sorted(set(source) - set(own) - optional)
     if missing or unexpected:
         parts = [f"{what}: {_some(keys)}" for what, keys in (("missing from the checkpoint", missing),
@@ -244,14 +241,13 @@ def freeze_all_but(net: DaDiffNet, prefixes: Sequence[str]) -> list[nn.Module]:
 
 
 def param_groups(net: DaDiffNet, cfg: TrainConfig) -> list[dict[str, Any]]:
-    """Backbone, the rest, then the DaDiff block and its template reading as groups of their own only when
-    their factors differ (so that the optimiser states of earlier runs, with two groups, still resume)."""
+    """Backbone, the rest, then the DaDiff block as a group of its own only when its factor differs (so that
+    the optimiser states of earlier runs, with two groups, still resume)."""
     backbone = [p for p in net.backbone.parameters() if p.requires_grad]
-    own = [(prefixes, mult) for prefixes, mult in ((TEMPLATE_READ, cfg.template_lr_mult),
-                                                    (DADIFF_BLOCK, cfg.dadiff_lr_mult)) if mult != 1.0]
+    own = [(DADIFF_BLOCK, cfg.dadiff_lr_mult)] if cfg.dadiff_lr_mult != 1.0 else []
     named = [(n, p) for n, p in net.named_parameters() if p.requires_grad and not n.startswith("backbone.")]
     groups = [{"params": backbone, "lr_mult": cfg.backbone_lr_mult}]
-    for prefixes, mult in own:  # the template reading first: its names also start with the block's
+    for prefixes, mult in own:
         groups.append({"params": [p for n, p in named if n.startswith(prefixes)], "lr_mult": mult})
         named = [(n, p) for n, p in named if not n.startswith(prefixes)]
     groups.insert(1, {"params": [p for _, p in named], "lr_mult": 1.0})
@@ -313,8 +309,7 @@ class Trainer:
         from .teacher import BACKBONE, HEAD, TEACHER_STRIDE, NanoTrackTeacher
 
         where = f"'teacher' is {self.cfg.teacher!r}"
-        if self.net.cfg.tracker.stride * self.net.cfg.head_upsample != TEACHER_STRIDE or \
-                len(self.net.cfg.level_names) != 1:
+        if self.net.cfg.tracker.stride != TEACHER_STRIDE or len(self.net.cfg.level_names) != 1:
             raise SetupError("teacher", f"{where}, but teacher distillation needs a one-level stride-{TEACHER_STRIDE} "
                                         f"family (dadiff-mobile), not {self.net.cfg.family}; set family = "
                                         f"\"dadiff-mobile\" or drop 'teacher'")
@@ -415,7 +410,7 @@ class Trainer:
             logs |= {"night_cls": out["night_cls"].item(), "night_loc": out["night_loc"].item()}
         if self.teacher is not None:
             t_feat, t_prob, t_loc = (t.to(self.device) for t in self.teacher(
-                cpu_batch["z"], cpu_batch["x"], cls.shape[-1], self.net.cfg.head_upsample))
+                cpu_batch["z"], cpu_batch["x"], cls.shape[-1]))
             l_distill = distill_cls_loss(cls, t_prob) + distill_loc_loss(loc, t_loc, t_prob)
             if cfg.lambda_night_distill and out["night_cls_map"] is not None:
                 # the teacher sees the day crop, the student the same crop rendered at night
@@ -486,7 +481,7 @@ class TrainForward(nn.Module):
                 z_night: torch.Tensor | None = None, x_night: torch.Tensor | None = None):
         net = self.net
         zb = net.template_branch(z)
-        xb = net.search_branch(x, zb.aligned)
+        xb = net.search_branch(x)
         cls, loc = net.head(xb.aligned, *net.head.kernels(zb.aligned))
         zero = cls.sum() * 0
         out = {"cls": ban_cls_loss(cls, label), "loc": self.box_loss(loc, loc_target, label), "align": zero,
@@ -497,7 +492,7 @@ class TrainForward(nn.Module):
         if z_night is None:
             return out
         zn = net.template_branch(z_night)
-        xn = net.search_branch(x_night, zn.aligned)
+        xn = net.search_branch(x_night)
         out["night_states"] = [s for b in (zn, xn) for level in b.states for s in level]
         if paired:  # rendered from the day frames: the day boxes hold
             cls_n, loc_n = net.head(xn.aligned, *net.head.kernels(zn.aligned))
@@ -738,6 +733,8 @@ def main_recipe(args: Any, recipe: list[Stage]) -> int:
     """`dadiff-train` on a staged config (one process): every stage in order, resumable."""
     if args.seed is not None:
         raise ValueError(f"{args.config}: --seed applies to a config without stages; each stage sets its own seed")
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        raise ValueError(f"{args.config}: a config in stages runs in one process (dadiff-train, not torchrun)")
     if args.show_config:
         print(show_recipe(recipe), end="")
         return 0

@@ -55,7 +55,7 @@ def resolved(path: str) -> str:
 MINIMUM: dict[str, tuple[float, bool]] = {
     "steps": (1, True), "batch_size": (2, True), "workers": (0, True), "warmup_steps": (0, True),
     "checkpoint_every": (1, True), "freeze_backbone_blocks": (0, True), "lr": (0, False),
-    "backbone_lr_mult": (0, True), "dadiff_lr_mult": (0, True), "template_lr_mult": (0, True),
+    "backbone_lr_mult": (0, True), "dadiff_lr_mult": (0, True),
     "weight_decay": (0, True),
     "disc_lr": (0, False), "disc_poly_power": (0, True),
     "lambda_trc": (0, True), "lambda_loc": (0, True), "lambda_adv": (0, True), "lambda_align": (0, True),

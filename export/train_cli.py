@@ -37,7 +37,6 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("lr", "0.0015", "base learning rate (> 0)"),
     ("backbone_lr_mult", "0.1", "backbone learning-rate factor"),
     ("dadiff_lr_mult", "1.0", "learning-rate factor of the DaDiff block (denoiser, aligned layer, gate)"),
-    ("template_lr_mult", "1.0", "learning-rate factor of the block's template reading (align_template)"),
     ("warmup_steps", "50", "linear warm-up steps"),
     ("weight_decay", "0.0001", "weight decay"),
     ("freeze_backbone_blocks", "5", "EfficientNet-Lite0 blocks 0..N-1 kept at ImageNet"),
@@ -71,10 +70,14 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
 )
 # not a TrainConfig field: export/train_toml.py follows it before the keys are read
 EXTENDS = ("extends", "(none)", "a config (path relative to this file) to start from; each key here replaces its value")
+# not a TrainConfig field either: export/train_stages.py reads the stage list
+STAGES = ("[[stages]]", "(none)", "a recipe in stages run in order in <out>/NN-name, each from the previous one's "
+          "final state: name, resume = true (go on with its run), stop_at = N, and the keys the stage changes")
 
 
 def config_help() -> str:
-    rows = "\n".join(f"  {key:<23} {default:<38} {what}" for key, default, what in (*CONFIG_KEYS, EXTENDS))
+    rows = "\n".join(f"  {key:<23} {default:<38} {what}"
+                     for key, default, what in (*CONFIG_KEYS, EXTENDS, STAGES))
     return ("config keys (top level, or inside [train], [loss], [data], [output] tables; types are checked):\n"
             f"{rows}\n\nFinished runs write <out>/final.pt: export it with dadiff-export <out>/final.pt. "
             f"Exit codes: 0 done or stopped by --max-steps/--max-minutes (resume with the same command), 2 bad "

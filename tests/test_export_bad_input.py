@@ -60,7 +60,11 @@ def test_parity_gate_fails_on_non_finite_outputs(tmp_path, mobile_checkpoint) ->
 BAD_STORED = [
     ({"ddim_start_t": 20}, None, "'ddim_start_t' is 20; expected an integer in 0..19"),  # was: IndexError
     ({"ddim_start_t": 1000}, None, "'ddim_start_t' is 1000; expected an integer in 0..19"),
-    (None, {"stride": 16}, "'tracker.stride' is 16; the network (efficientnet-lite0, head_upsample 1) has stride 8"),
+    (None, {"stride": 16}, "'tracker.stride' is 16; the network (efficientnet-lite0) has stride 8"),
+    ({"fine_skip": True}, None, "'fine_skip' is True: a retired experiment this version cannot build"),
+    ({"head_upsample": 2}, None, "'head_upsample' is 2: a retired experiment"),
+    ({"antialias_blocks": [4]}, None, "'antialias_blocks' is [4]: a retired experiment"),
+    ({"align_template": True}, None, "'align_template' is True: a retired experiment"),
     (None, {"hp_presets": {"NAT": {"lr": 0.4, "penalty_k": 0.1, "window_influence": 0.3, "foo": 1}}},
      "'tracker.hp_presets.NAT' has unknown key 'foo'"),
     (None, {"context_amount": 1e308}, "'tracker.context_amount' is 1e+308; expected at most 10"),
@@ -75,6 +79,14 @@ def test_export_refuses_more_bad_stored_configs(tmp_path, capsys, model, tracker
     path = _checkpoint(tmp_path / "bad.pt", model, tracker)
     line = _export(path, tmp_path / "out", capsys)
     assert "invalid model config" in line and message in line and str(path) in line
+
+
+def test_states_saved_with_the_retired_keys_at_their_values_still_load() -> None:
+    """The committed training states store head_upsample = 1, antialias_blocks = [], fine_skip = false."""
+    from dadiff.export.config import RETIRED_KEYS, ModelConfig
+
+    cfg = default_config("dadiff-mobile")
+    assert ModelConfig.from_dict(cfg.to_dict() | RETIRED_KEYS) == cfg
 
 
 @pytest.mark.parametrize(("change", "message"), [

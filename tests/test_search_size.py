@@ -59,7 +59,8 @@ def test_trained_model_at_223_tracks_a_night_sequence(tmp_path, capsys):
     from dadiff.runtime.evaluation.metrics import success_curve
     from dadiff.runtime.evaluation.scenes import make_sequence
 
-    checkpoint = Path(__file__).resolve().parents[1] / "export" / "resume" / "mobile-dadiff-cutoutsneckside-ema-average.pt"
+    resume = Path(__file__).resolve().parents[1] / "export" / "resume"
+    checkpoint = resume / "mobile-dadiff-cutoutsneckside-ema-average.pt"
     code = main([str(checkpoint), "-o", str(tmp_path / "m223"), "--search-size", "223"])
     out = capsys.readouterr().out
     assert code == 0 and "search crop 223 px, score map 11 x 11" in out

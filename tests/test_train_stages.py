@@ -131,3 +131,14 @@ def test_stages_continue_from_each_other_and_resume(tmp_path, images, capsys) ->
     start, end = more["state_dict"], night["state_dict"]  # 'night' trains the box branch alone: the rest is
     moved = {k for k in start if not torch.equal(start[k], end[k])}  # 'day-more''s final state, handed on
     assert moved and all(k.startswith("head.box0.loc.") for k in moved)
+
+
+def test_seed_and_torchrun_are_refused_on_a_staged_config(tmp_path, images, capsys, monkeypatch) -> None:
+    """Each stage sets its own seed; the stages run in one process."""
+    path = _recipe(tmp_path, images)
+    assert main(["--config", str(path), "--seed", "3"]) == 2
+    assert "--seed applies to a config without stages" in capsys.readouterr().err
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    assert main(["--config", str(path)]) == 2
+    assert "runs in one process" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
