@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from dadiff.models import ModelNotFoundError, resolve
 from dadiff.runtime.argtypes import float_in, int_in
 from dadiff.runtime.config import GEOMETRY_LIMITS
-from dadiff.runtime.errors import OneLineParser
+from dadiff.runtime.errors import DadiffError, OneLineParser
 from dadiff.runtime.sources import SourceError, open_source, parse_box
 
 from .config import FAMILIES, HP_PRESETS
@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # torch and onnx load after the arguments are checked (--help
 EXPORT_EXTRA = 'pip install "dadiff[export]"'
 
 
-class UserError(Exception):
+class UserError(DadiffError):
     """A problem the user can fix; main prints it as one line and exits 2."""
 
 
@@ -130,25 +130,22 @@ def main(argv: list[str] | None = None) -> int:
     if args.steps is not None and not 1 <= args.steps <= 20:
         parser.error(f"--steps must be in 1..20, got {args.steps}")
     try:
-        errors = _user_errors()
+        _import_torch_side()
     except ModuleNotFoundError as e:
         return _fail(f"exporting needs PyTorch and onnx, which are not installed here (no module {e.name!r}): "
                      f"{EXPORT_EXTRA}")
     try:
         return _main(args)
-    except errors as e:
+    except DadiffError as e:
         return _fail(str(e))
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; no files written", file=sys.stderr)
         return 130
 
 
-def _user_errors() -> tuple[type[Exception], ...]:
-    """The one-line error types of the torch side (importing it here: --help and usage errors stay fast)."""
-    from .checkpoint import CheckpointError
-    from .quantize import QuantizeError
-
-    return UserError, CheckpointError, QuantizeError
+def _import_torch_side() -> None:
+    """Import the torch side now, not at module level: --help and usage errors stay fast (and work without it)."""
+    from . import checkpoint, quantize  # noqa: F401
 
 
 def _main(args: argparse.Namespace) -> int:

@@ -43,8 +43,8 @@ from .bench import (
 )
 from .cli import hp_arg
 from .cpu import cpu_flags
-from .errors import InputError, ModelError, OneLineParser, os_error_line
-from .evaluation.datasets import Dataset, DatasetError
+from .errors import DadiffError, ModelError, OneLineParser, os_error_line
+from .evaluation.datasets import Dataset
 from .evaluation.evaluate import (
     NANO_ENV,
     EvalError,
@@ -58,10 +58,8 @@ from .evaluation.evaluate import (
     score_tracker,
     tracker_folder,
 )
-from .evaluation.scene_error import SceneError
-from .instructions import CLIP, UPDATES, InstructionCountError, count_updates, valgrind_path, write_clip
+from .instructions import CLIP, UPDATES, count_updates, valgrind_path, write_clip
 from .onnx_backend import physical_cores, thread_count
-from .outputs import OutputError
 from .sources import quiet_opencv
 from .tracker import Tracker
 
@@ -77,7 +75,7 @@ MAX_CLIP = 1000  # --clip: the generated clip is rendered in memory, about 1.8 M
 CPU_FLAGS = ("avx2", "avx512f", "avx512_vnni")  # what onnxruntime's and OpenCV's fast kernels dispatch on
 
 
-class BenchError(Exception):
+class BenchError(DadiffError):
     """One line for the user."""
 
 
@@ -435,10 +433,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with quiet_opencv():  # FFmpeg's own lines (`moov atom not found`) stay off stderr, as in every command
             report = run(args)
-    except (BenchError, ModelError, InputError, OSError, OutputError, SceneError, DatasetError, EvalError,
-            InstructionCountError) as exc:  # OutputError: the clip's video could not be written whole
+    except (DadiffError, OSError) as exc:  # e.g. the clip's video not written whole, scikit-image missing
         line = os_error_line(exc) if isinstance(exc, OSError) else exc
-        print(f"dadiff-bench: error: {line}", file=sys.stderr)  # SceneError: e.g. scikit-image missing
+        print(f"dadiff-bench: error: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("dadiff-bench: interrupted", file=sys.stderr)

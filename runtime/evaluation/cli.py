@@ -36,11 +36,11 @@ from pathlib import Path
 
 from ..argtypes import float_in, non_negative_int, positive_int
 from ..cli import hp_arg
-from ..errors import InputError, ModelError, OneLineParser, os_error_line
+from ..errors import DadiffError, InputError, ModelError, OneLineParser, os_error_line
 from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
 from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
-from .datasets import Dataset, DatasetError, load_dataset, plural
+from .datasets import Dataset, load_dataset, plural
 from .detection_tracks import LinkSettings, write_detection_benchmark
 from .detector import Detector, detect_video, write_det_txt
 from .evaluate import (
@@ -920,11 +920,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with quiet_opencv():
             return commands[args.command](args)
-    except (DatasetError, EvalError, SceneError, ModelError, InputError, LibraryError) as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
+    except OSError as exc:  # first: an UnreadableFile is a DadiffError too, and reads best as `<file>: <why>`
         print(f"{PROG}: error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
+    except DadiffError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; finished sequences are kept, run again to resume", file=sys.stderr)
