@@ -8,6 +8,7 @@ the sampler into the denoiser and the tracking-oriented layer (paper sec. III; s
 
 from __future__ import annotations
 
+import argparse
 import csv
 import math
 import os
@@ -630,12 +631,13 @@ def replica_divergence(net: nn.Module) -> float:
     return float(diff)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | argparse.Namespace | None = None) -> int:
+    """dadiff-train; `argv` may be the arguments dadiff-train's launcher already parsed (notes print once)."""
+    args = argv if isinstance(argv, argparse.Namespace) else build_parser().parse_args(argv)
     try:
         cfg = TrainConfig.from_toml(args.config)
-        if args.out:
-            cfg.out = args.out
+        if args.output:
+            cfg.out = args.output
         if args.seed is not None:
             cfg.seed = args.seed
         if args.show_config:

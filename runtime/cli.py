@@ -113,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--provider", help="onnxruntime provider (cpu, cuda, tensorrt, openvino; default: best)"
     )
     parser.add_argument("--threads", type=positive_int, help="threads per session (default: one per physical core)")
-    parser.add_argument("--output", type=Path, metavar="FILE", help="track log, .csv or .jsonl")
+    parser.add_argument("-o", "--output", type=Path, metavar="FILE", help="track log, .csv or .jsonl")
     parser.add_argument("--save-video", type=Path, metavar="OUT.mp4", help="annotated video (mp4v)")
     parser.add_argument(
         "--max-frames", type=positive_int, metavar="N", help="stop after N frames (incl. the first)"

@@ -538,9 +538,9 @@ sys.exit(main(ARGV))
 
 
 @pytest.mark.parametrize(("module", "prog", "argv"), [
-    ("dadiff.runtime.bench_cli", "dadiff-bench", ["--frames", "2", "--clip", "3", "--warmup", "0", "--no-nano"]),
+    ("dadiff.runtime.bench_cli", "dadiff-bench", ["--max-frames", "2", "--clip", "3", "--warmup", "0", "--no-nano"]),
     ("dadiff.runtime.cli", "dadiff-run", ["--demo", "--demo-out", "{tmp}/demo"]),
-    ("dadiff.runtime.evaluation.cli", "dadiff-eval", ["generate", "--out", "{tmp}/gen", "--sequences", "1"]),
+    ("dadiff.runtime.evaluation.cli", "dadiff-eval", ["generate", "--output", "{tmp}/gen", "--sequences", "1"]),
 ])
 def test_without_scikit_image_the_generator_says_what_to_install(module, prog, argv, tmp_path) -> None:
     args = [a.replace("{tmp}", str(tmp_path)) for a in argv]

@@ -108,7 +108,7 @@ class Dataset:
 def check_new_folder(out: Path) -> None:
     """Refuse to write a benchmark over anything: `out` must not exist or be an empty folder."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise SceneError(f"{out}: exists and is not an empty folder; choose a new --out")
+        raise SceneError(f"{out}: exists and is not an empty folder; choose a new --output")
 
 
 def plural(count: int, word: str, words: str | None = None) -> str:

@@ -375,7 +375,7 @@ def claim_folder(folder: Path, record: dict) -> str | None:
         differences = run_record_differences(old, record)
         if differences:
             raise EvalError(f"{folder} holds results of other settings ({'; '.join(differences)}): give --name NEW "
-                            f"(or another --results) for these settings; nothing tracked")
+                            f"(or another --output) for these settings; nothing tracked")
         return None
     if has_results:
         return (f"{folder} has results but no {RUN_RECORD} (written by an older dadiff-eval): their settings "
