@@ -373,13 +373,13 @@ def run_mavlink(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, video: str) -> int:
     from dadiff.runtime.cli import warn_int8
-    from dadiff.runtime.errors import InputError, ModelError
-    from dadiff.runtime.outputs import OutputError, Sink, TrackLog, VideoSink
+    from dadiff.runtime.errors import DadiffError
+    from dadiff.runtime.outputs import Sink, TrackLog, VideoSink
     from dadiff.runtime.sources import open_source
     from dadiff.runtime.tracker import Tracker
 
     from .service import Service
-    from .signing import SigningKeyError, load_key
+    from .signing import load_key
     from .systemd import Notifier
 
     sinks: list[Sink] = []
@@ -398,7 +398,7 @@ def _run(args: argparse.Namespace, video: str) -> int:
             sinks.append(TrackLog(output))
         if save_video is not None:
             sinks.append(VideoSink(save_video, None))
-    except (SigningKeyError, ModelError, InputError, OutputError) as exc:
+    except DadiffError as exc:
         for sink in sinks:
             sink.close()
         return _error(exc)

@@ -17,10 +17,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.errors import DadiffError
 from dadiff.runtime.user_files import SETTINGS_LIMIT, read_user_text
 
 
-class ConfigError(Exception):
+class ConfigError(DadiffError):
     """A config file problem (one line)."""
 
 

@@ -19,6 +19,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.errors import DadiffError
 from dadiff.runtime.user_files import SETTINGS_LIMIT, read_user_bytes
 
 log = logging.getLogger(__name__)
@@ -27,7 +28,7 @@ KEY_BYTES = 32
 RADIO_STATUS = 109  # SiK radios inject it unsigned; ArduPilot accepts it unsigned for the same reason
 
 
-class SigningKeyError(ValueError):
+class SigningKeyError(DadiffError, ValueError):
     """The key file is missing, unreadable or empty (one-line message)."""
 
 

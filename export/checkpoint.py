@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from dadiff.runtime.errors import DadiffError
 from dadiff.runtime.ort_cache import file_sha256
 
 from .config import FAMILIES, GAT_FAMILY, ModelConfig, default_config, validate_config
@@ -24,7 +25,7 @@ from .network import DaDiffNet, build_model
 FORMAT_VERSION = 1
 
 
-class CheckpointError(Exception):
+class CheckpointError(DadiffError):
     """A checkpoint that cannot be used; str() is a one-line message for the user."""
 
 

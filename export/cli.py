@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from dadiff.models import ModelNotFoundError, resolve
-from dadiff.runtime.argtypes import float_in, int_in
+from dadiff.runtime.argtypes import add_renamed, float_in, int_in
 from dadiff.runtime.config import GEOMETRY_LIMITS
-from dadiff.runtime.errors import OneLineParser
+from dadiff.runtime.errors import DadiffError, OneLineParser
 from dadiff.runtime.sources import SourceError, open_source, parse_box
 
 from .config import FAMILIES, HP_PRESETS
@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # torch and onnx load after the arguments are checked (--help
 EXPORT_EXTRA = 'pip install "dadiff[export]"'
 
 
-class UserError(Exception):
+class UserError(DadiffError):
     """A problem the user can fix; main prints it as one line and exits 2."""
 
 
@@ -95,8 +95,8 @@ def _add_quantize_options(p: argparse.ArgumentParser) -> None:
     q.add_argument("--eval-sequences", type=int_in(1), default=DEFAULT_EVAL_SEQUENCES, metavar="N",
                    help="sequences of the generated night test set used to compare fp32 and int8 "
                         f"(default {DEFAULT_EVAL_SEQUENCES})")
-    q.add_argument("--eval-frames", type=int_in(2), default=DEFAULT_EVAL_FRAMES, metavar="N",
-                   help=f"frames per evaluation sequence (default {DEFAULT_EVAL_FRAMES})")
+    add_renamed(q, "--max-frames", former=["--eval-frames"], type=int_in(2), default=DEFAULT_EVAL_FRAMES, metavar="N",
+                help=f"frames per evaluation sequence (default {DEFAULT_EVAL_FRAMES})")
     q.add_argument("--recipe", default=DEFAULT_RECIPE,
                    help=f"which parts stay in float (default {DEFAULT_RECIPE}; see export/quantize.py RECIPES)")
     q.add_argument("--bench-runs", type=int_in(0), default=DEFAULT_BENCH_RUNS, metavar="N",
@@ -130,25 +130,22 @@ def main(argv: list[str] | None = None) -> int:
     if args.steps is not None and not 1 <= args.steps <= 20:
         parser.error(f"--steps must be in 1..20, got {args.steps}")
     try:
-        errors = _user_errors()
+        _import_torch_side()
     except ModuleNotFoundError as e:
         return _fail(f"exporting needs PyTorch and onnx, which are not installed here (no module {e.name!r}): "
                      f"{EXPORT_EXTRA}")
     try:
         return _main(args)
-    except errors as e:
+    except DadiffError as e:
         return _fail(str(e))
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; no files written", file=sys.stderr)
         return 130
 
 
-def _user_errors() -> tuple[type[Exception], ...]:
-    """The one-line error types of the torch side (importing it here: --help and usage errors stay fast)."""
-    from .checkpoint import CheckpointError
-    from .quantize import QuantizeError
-
-    return UserError, CheckpointError, QuantizeError
+def _import_torch_side() -> None:
+    """Import the torch side now, not at module level: --help and usage errors stay fast (and work without it)."""
+    from . import checkpoint, quantize  # noqa: F401
 
 
 def _main(args: argparse.Namespace) -> int:
@@ -215,7 +212,7 @@ def quantize_settings(args: argparse.Namespace) -> QuantizeSettings:
     if args.calibration is not None:
         _check_calibration_source(args.calibration, init)
     settings = QuantizeSettings(calibration=args.calibration, init=init, frames=args.calibration_frames,
-                                eval_sequences=args.eval_sequences, eval_frames=args.eval_frames,
+                                eval_sequences=args.eval_sequences, eval_frames=args.max_frames,
                                 bench_runs=args.bench_runs, recipe=args.recipe, reduce_range=args.reduce_range)
     settings.check()
     return settings
@@ -251,7 +248,7 @@ def _refuse_quantize_options(args: argparse.Namespace) -> None:
         ("--calibration", args.calibration, None), ("--calibration-init", args.calibration_init, None),
         ("--calibration-frames", args.calibration_frames, DEFAULT_CALIBRATION_FRAMES),
         ("--eval-sequences", args.eval_sequences, DEFAULT_EVAL_SEQUENCES),
-        ("--eval-frames", args.eval_frames, DEFAULT_EVAL_FRAMES), ("--bench-runs", args.bench_runs, DEFAULT_BENCH_RUNS),
+        ("--max-frames", args.max_frames, DEFAULT_EVAL_FRAMES), ("--bench-runs", args.bench_runs, DEFAULT_BENCH_RUNS),
         ("--recipe", args.recipe, DEFAULT_RECIPE), ("--reduce-range", args.reduce_range, None),
     ) if value != default]
     if given:

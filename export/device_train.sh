@@ -23,7 +23,7 @@ mode=${1:?$usage}
 if [ "$mode" = prepare ]; then
     run=${2:?usage: device_train.sh prepare RUN_DIR}
     rm -rf .device && mkdir -p .device/wheels .device/run
-    dadiff-eval data pack --out .device/library --max-mib 16
+    dadiff-eval data pack --output .device/library --max-mib 16
     cp ../shared/weights/nanotrack/v3/nanotrack_backbone.onnx ../shared/weights/nanotrack/v3/nanotrack_head.onnx \
         .device/ 2>/dev/null || echo "no NanoTrack v3 teacher beside the checkout: the device run trains without it"
     python3 -m pip download -q --no-deps --only-binary :all: -d .device/wheels tqdm   # onnxruntime (27 MB) does not fit

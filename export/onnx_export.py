@@ -27,6 +27,8 @@ import torch
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
+from dadiff.runtime.errors import DadiffError
+
 from .checkpoint import LoadedCheckpoint
 from .config import GAT_BACKBONE, GAT_FAMILY, is_lite0, tracker_metadata
 from .defaults import DEFAULT_OPSET, PARITY_TOLERANCE, SUPPORTED_OPSETS
@@ -35,7 +37,7 @@ from .network import DaDiffNet
 TEMPLATE_FILE, SEARCH_FILE = "template.onnx", "search.onnx"
 
 
-class ExportError(Exception):
+class ExportError(DadiffError):
     """Export failed; str() is one line for the user."""
 
 

@@ -34,12 +34,12 @@ from onnxruntime.quantization.shape_inference import quant_pre_process
 from dadiff.runtime.backend import RecordingBackend
 from dadiff.runtime.cpu import INT8_WARNING, int8_saturates
 from dadiff.runtime.decode import foreground_score, hann_window
-from dadiff.runtime.errors import InputError, ModelError
-from dadiff.runtime.evaluation.datasets import Dataset, DatasetError
-from dadiff.runtime.evaluation.evaluate import EvalError, generated_night_set, score_tracker
-from dadiff.runtime.evaluation.scenes import SceneError, make_sequence
+from dadiff.runtime.errors import DadiffError, InputError, ModelError
+from dadiff.runtime.evaluation.datasets import Dataset
+from dadiff.runtime.evaluation.evaluate import generated_night_set, score_tracker
+from dadiff.runtime.evaluation.scenes import make_sequence
 from dadiff.runtime.onnx_backend import OnnxBackend, session_options
-from dadiff.runtime.sources import SourceError, open_source
+from dadiff.runtime.sources import open_source
 from dadiff.runtime.tracker import Tracker
 
 from .defaults import (
@@ -64,7 +64,7 @@ Feed = dict[str, np.ndarray]
 Log = Callable[[str], None]
 
 
-class QuantizeError(Exception):
+class QuantizeError(DadiffError):
     """Quantisation failed or was asked for something impossible; str() is one line for the user."""
 
 
@@ -428,10 +428,12 @@ def quantize_model(source: str | Path, out: str | Path, settings: QuantizeSettin
             shutil.move(str(staging / "model" / name), str(out / name))
         report.out_dir, report.seconds = out, time.perf_counter() - started
         return report
-    except (SourceError, SceneError, DatasetError, EvalError, ModelError, InputError) as exc:
-        raise QuantizeError(str(exc)) from None
     except OSError as exc:
         raise QuantizeError(f"{out}: cannot write the model ({exc.strerror or exc})") from None
+    except QuantizeError:
+        raise
+    except DadiffError as exc:  # a bad calibration source, scene, model: one line under the quantiser's name
+        raise QuantizeError(str(exc)) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 

@@ -17,11 +17,13 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
+from dadiff.runtime.errors import DadiffError
+
 BACKBONE, HEAD = "nanotrack_backbone.onnx", "nanotrack_head.onnx"
 TEACHER_SIZE, TEACHER_SCORE, TEACHER_STRIDE = 255, 15, 16
 
 
-class TeacherError(ValueError):
+class TeacherError(DadiffError, ValueError):
     """Missing or unusable teacher files (one-line message)."""
 
 

@@ -8,6 +8,7 @@ the sampler into the denoiser and the tracking-oriented layer (paper sec. III; s
 
 from __future__ import annotations
 
+import argparse
 import csv
 import math
 import os
@@ -743,10 +744,11 @@ def main_recipe(args: Any, recipe: list[Stage]) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | argparse.Namespace | None = None) -> int:
+    """dadiff-train; `argv` may be the arguments dadiff-train's launcher already parsed (notes print once)."""
+    args = argv if isinstance(argv, argparse.Namespace) else build_parser().parse_args(argv)
     try:
-        recipe = load_recipe(args.config, args.out)
+        recipe = load_recipe(args.config, args.output)
         if recipe[0].plan.name:
             return main_recipe(args, recipe)
         cfg = recipe[0].cfg

@@ -13,6 +13,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.errors import DadiffError
 from dadiff.runtime.evaluation.night import NIGHT_STYLES
 
 from .config import FAMILIES, GAT_FAMILY, ModelConfig, default_config, validate_config, with_overrides
@@ -33,7 +34,7 @@ LIBRARY_ONLY = ("companions", "stretch", "cutouts")  # scene options that only l
 SCENE_SOURCES = ("skimage", "library")
 
 
-class SetupError(ValueError):
+class SetupError(DadiffError, ValueError):
     """A config key whose value fails only as the run is set up (a path, the network's parameter names):
     `key` lets dadiff-train name the config file that sets it."""
 

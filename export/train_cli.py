@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from dadiff.runtime.argtypes import float_in, int_in
+from dadiff.runtime.argtypes import add_renamed, float_in, int_in
 from dadiff.runtime.errors import OneLineParser
 
 PROG = "dadiff-train"
@@ -93,11 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "dadiff/export/configs/ in site-packages)")
     p.add_argument("--max-steps", type=int_in(1),
                    help="stop after this many steps of this run (resume later; default: run to 'steps')")
-    p.add_argument("--out", help="override the config's output folder")
+    add_renamed(p, "-o", "--output", former=["--out"], help="override the config's output folder (its 'out' key)")
     p.add_argument("--seed", type=int_in(0, SEED_MAX),
-                   help="override the config's seed (a second run of one recipe: use another --out too)")
+                   help="override the config's seed (a second run of one recipe: use another --output too)")
     p.add_argument("--show-config", action="store_true",
-                   help="print the config the run would use (after 'extends' and --out/--seed) and exit")
+                   help="print the config the run would use (after 'extends' and --output/--seed) and exit")
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto (default: %(default)s)")
     p.add_argument("--max-minutes", type=float_in(0, open_low=True),
                    help="stop after this many minutes of this run (resume later; default: no limit)")
@@ -113,8 +113,7 @@ def finish_line(step: int, steps: int, out: Path, averaged: bool = False) -> str
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    build_parser().parse_args(args)  # --help and usage errors before torch loads
+    args = build_parser().parse_args(argv)  # --help and usage errors before torch loads
     try:
         from . import train
     except ModuleNotFoundError as e:

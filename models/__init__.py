@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from dadiff.runtime.errors import DadiffError
+
 __all__ = ["DEFAULT_MODEL", "GRAPH_FILES", "ModelNotFoundError", "list_models", "resolve"]
 
 DEFAULT_MODEL = "dadiff-mobile"
@@ -17,7 +19,7 @@ GRAPH_FILES = ("template.onnx", "search.onnx")
 _HERE = Path(__file__).resolve().parent
 
 
-class ModelNotFoundError(LookupError):
+class ModelNotFoundError(DadiffError, LookupError):
     """No model folder matches the given name or path (message is one line)."""
 
 

@@ -1,4 +1,5 @@
-"""argparse types the commands share, light enough for any parser to import (no onnxruntime, no OpenCV).
+"""argparse types the commands share, light enough for any parser to import (no onnxruntime, no OpenCV), and
+`add_renamed`, which keeps an option's former spelling working for one release with a deprecation note.
 
 Every command's bounded integers and numbers use these, so that a refusal reads the same everywhere and names
 the range and the text given: "expected an integer from 1 to 20, got '0'", "expected an integer of at least 1,
@@ -11,7 +12,9 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
 
 
 def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
@@ -54,3 +57,42 @@ def float_in(low: float, high: float | None = None, *, open_low: bool = False) -
 
 positive_int = int_in(1)  # counts, threads, frames
 non_negative_int = int_in(0)  # seeds: numpy refuses negative ones with a traceback, often after an output is made
+
+
+class _FormerSpelling(argparse.Action):
+    """A renamed option's former spelling, hidden from --help: one note on stderr, then the option's own action."""
+
+    def __init__(self, option_strings: list[str], dest: str, current: argparse.Action, former: str, **kwargs: Any):
+        super().__init__(option_strings, dest, **kwargs)
+        self.current, self.former = current, former
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"{parser.prog}: warning: {self.former} is deprecated and goes in the next release; use "
+              f"{'/'.join(self.current.option_strings)}", file=sys.stderr)
+        self.current(parser, namespace, values, option_string)
+
+
+def add_renamed(container: Any, *spellings: str, former: Sequence[str], **kwargs: Any) -> argparse.Action:
+    """`container.add_argument(*spellings, **kwargs)`, also taking the `former` spellings for one release.
+
+    A former option string (`--out`) takes what the option takes; a former name without dashes is a positional
+    (`dadiff-bench MODEL ...`) whose values go to a list-valued option (`--model`, action "extend"). Either
+    prints one deprecation line on stderr naming the new spelling. A required option stays required: the
+    former and new spellings form a required group, one of them needed.
+    """
+    required = kwargs.pop("required", False)
+    target = container.add_mutually_exclusive_group(required=True) if required else container
+    current = target.add_argument(*spellings, **kwargs)
+    hidden = {"action": _FormerSpelling, "current": current, "default": argparse.SUPPRESS, "help": argparse.SUPPRESS}
+    for old in former:
+        if old.startswith("-"):
+            target.add_argument(old, dest=current.dest, nargs=current.nargs, type=current.type,
+                                choices=current.choices, metavar=current.metavar, former=old, **hidden)
+        else:
+            if kwargs.get("action") != "extend":
+                raise ValueError(f"a former positional {old!r} needs a list-valued option (action='extend')")
+            name = current.metavar or current.dest.upper()
+            target.add_argument(old, nargs="*", type=current.type, metavar=name,
+                                former=f"{name} without {spellings[-1]}", **hidden)
+    return current

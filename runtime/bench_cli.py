@@ -1,4 +1,4 @@
-"""`dadiff-bench [MODEL ...]`: per-stage latency, FPS and memory of one or more models, side by side.
+"""`dadiff-bench [--model MODEL ...]`: per-stage latency, FPS and memory of one or more models, side by side.
 
 The models take turns of 50 frames (`--interleave`) on the same generated night video (same frames, same
 threads), so that their ratios are measured over the same stretch of time; the first is the reference for
@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
-from .argtypes import int_in, non_negative_int, positive_int
+from .argtypes import add_renamed, int_in, non_negative_int, positive_int
 from .bench import (
     BenchLane,
     BenchRun,
@@ -43,8 +43,8 @@ from .bench import (
 )
 from .cli import hp_arg
 from .cpu import cpu_flags
-from .errors import InputError, ModelError, OneLineParser, os_error_line
-from .evaluation.datasets import Dataset, DatasetError
+from .errors import DadiffError, ModelError, OneLineParser, os_error_line
+from .evaluation.datasets import Dataset
 from .evaluation.evaluate import (
     NANO_ENV,
     EvalError,
@@ -58,10 +58,8 @@ from .evaluation.evaluate import (
     score_tracker,
     tracker_folder,
 )
-from .evaluation.scene_error import SceneError
-from .instructions import CLIP, UPDATES, InstructionCountError, count_updates, valgrind_path, write_clip
+from .instructions import CLIP, UPDATES, count_updates, valgrind_path, write_clip
 from .onnx_backend import physical_cores, thread_count
-from .outputs import OutputError
 from .sources import quiet_opencv
 from .tracker import Tracker
 
@@ -72,24 +70,25 @@ ROWS = (
     ("frame", "frame end to end"), ("template", "template branch (per init)"),
 )
 SUCCESS_SEED = 2026  # the README's generated benchmark: --success 16 --success-frames 120 is that set
-MAX_FRAMES = 1_000_000  # --frames, --warmup, --interleave: the timing arrays take 72 MB at this count
+MAX_FRAMES = 1_000_000  # --max-frames, --warmup, --interleave: the timing arrays take 72 MB at this count
 MAX_CLIP = 1000  # --clip: the generated clip is rendered in memory, about 1.8 MB a frame
 CPU_FLAGS = ("avx2", "avx512f", "avx512_vnni")  # what onnxruntime's and OpenCV's fast kernels dispatch on
 
 
-class BenchError(Exception):
+class BenchError(DadiffError):
     """One line for the user."""
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="dadiff-bench", description=__doc__)
-    p.add_argument("models", nargs="*", help="model folders or shipped names (default: the shipped default)")
-    p.add_argument("--frames", type=int_in(1, MAX_FRAMES), default=1000,
-                   help=f"timed frames per model, at most {MAX_FRAMES} (default 1000)")
+    add_renamed(p, "--model", former=["models"], dest="models", action="extend", nargs=1, metavar="MODEL",
+                help="model folder or shipped name; repeat to compare several (default: the shipped default)")
+    add_renamed(p, "--max-frames", former=["--frames"], type=int_in(1, MAX_FRAMES), default=1000,
+                help=f"timed frames per model, at most {MAX_FRAMES} (default 1000)")
     p.add_argument("--warmup", type=int_in(0, MAX_FRAMES), default=20, help="untimed frames first (default 20)")
     p.add_argument("--interleave", type=int_in(0, MAX_FRAMES), default=50, metavar="N",
                    help="frames each tracker runs per turn, the trackers taking turns until each has run "
-                        "--frames (default 50), so that a busy stretch of a shared machine falls on all of "
+                        "--max-frames (default 50), so that a busy stretch of a shared machine falls on all of "
                         "them; 0: one tracker after another")
     p.add_argument("--clip", type=int_in(2, MAX_CLIP), default=300,
                    help=f"length of the generated clip, looped: 2 to {MAX_CLIP} frames (300)")
@@ -152,7 +151,7 @@ def _checkpoint(args: argparse.Namespace, folder: Path) -> Path:
 
 def _model_lane(model: Path, args: argparse.Namespace, video: NightVideo) -> BenchLane:
     tracker = Tracker.load(model, provider=args.provider, threads=args.threads, overrides=args.hp)
-    return BenchLane(tracker, video, args.frames)
+    return BenchLane(tracker, video, args.max_frames)
 
 
 def _model_result(model: Path, lane: BenchLane, run: BenchRun, args: argparse.Namespace, video: NightVideo,
@@ -402,9 +401,9 @@ def run(args: argparse.Namespace) -> dict:
         lanes = [_model_lane(m, args, video) for m in models]
         if use_nano:  # OpenCV's threads set to ours while it runs (`_use_nano` checked the weights)
             nano_tracker = OpenCVTracker("nano", nano_dir=args.nano_dir, option="--nano")
-            lanes.append(BenchLane(nano_tracker, video, args.frames, cv2_threads=threads))
+            lanes.append(BenchLane(nano_tracker, video, args.max_frames, cv2_threads=threads))
         _print_note(note)
-        with tqdm(total=args.frames * len(lanes), desc="frames", unit="frame", leave=False,
+        with tqdm(total=args.max_frames * len(lanes), desc="frames", unit="frame", leave=False,
                   disable=args.json or not sys.stderr.isatty()) as bar:
             runs = run_lanes(lanes, args.warmup, args.interleave, progress=lambda _: bar.update())
         results = [_model_result(m, lane, r, args, video, night, args.compare_torch and i == 0,
@@ -416,7 +415,7 @@ def run(args: argparse.Namespace) -> dict:
         if names.count(r["name"]) > 1:
             r["name"] = Path(r["model"]).name
     report = {"machine": _cpu(), "threads": threads, "video": f"generated night sequence {video.name}",
-              "frames": args.frames, "warmup": args.warmup, "results": results}
+              "frames": args.max_frames, "warmup": args.warmup, "results": results}
     if nano is not None:
         ref = results[0]
         nano["ratio"] = {"fps": ref["fps"] / nano["fps"], "update": nano["tracker"]["p50"] / ref["tracker"]["p50"]}
@@ -435,10 +434,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with quiet_opencv():  # FFmpeg's own lines (`moov atom not found`) stay off stderr, as in every command
             report = run(args)
-    except (BenchError, ModelError, InputError, OSError, OutputError, SceneError, DatasetError, EvalError,
-            InstructionCountError) as exc:  # OutputError: the clip's video could not be written whole
+    except (DadiffError, OSError) as exc:  # e.g. the clip's video not written whole, scikit-image missing
         line = os_error_line(exc) if isinstance(exc, OSError) else exc
-        print(f"dadiff-bench: error: {line}", file=sys.stderr)  # SceneError: e.g. scikit-image missing
+        print(f"dadiff-bench: error: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("dadiff-bench: interrupted", file=sys.stderr)

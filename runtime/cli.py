@@ -19,7 +19,7 @@ from .argtypes import non_negative_int, positive_int
 from .config import TUNABLE_KEYS
 from .cpu import int8_warning
 from .crop import protocol_box
-from .errors import InputError, ModelError, os_error_line
+from .errors import DadiffError, InputError, os_error_line
 from .launch import signals_held, stop_signals_interrupt
 from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
 from .runstats import RunStats
@@ -30,7 +30,7 @@ PROG = "dadiff-run"
 STATUS_EVERY_S = 5.0
 
 
-class UsageError(Exception):
+class UsageError(DadiffError):
     """A command-line problem, reported as one line."""
 
 
@@ -113,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--provider", help="onnxruntime provider (cpu, cuda, tensorrt, openvino; default: best)"
     )
     parser.add_argument("--threads", type=positive_int, help="threads per session (default: one per physical core)")
-    parser.add_argument("--output", type=Path, metavar="FILE", help="track log, .csv or .jsonl")
+    parser.add_argument("-o", "--output", type=Path, metavar="FILE", help="track log, .csv or .jsonl")
     parser.add_argument("--save-video", type=Path, metavar="OUT.mp4", help="annotated video (mp4v)")
     parser.add_argument(
         "--max-frames", type=positive_int, metavar="N", help="stop after N frames (incl. the first)"
@@ -311,11 +311,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             with stop_signals_interrupt(), quiet_opencv():
                 return _demo(args)
-        except (ModelError, InputError, SourceError, OutputError, ValueError, ImportError) as exc:
-            print(f"{PROG}: error: {exc}", file=sys.stderr)
-            return 2
-        except OSError as exc:
+        except OSError as exc:  # first: an UnreadableFile is a DadiffError too, and reads best as `<file>: <why>`
             print(f"{PROG}: error: {os_error_line(exc, args.demo_out)}", file=sys.stderr)
+            return 2
+        except (DadiffError, ValueError, ImportError) as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
             print(f"{PROG}: interrupted", file=sys.stderr)
@@ -328,11 +328,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with stop_signals_interrupt(), quiet_opencv():
             interrupted = _track(args, stats)
-    except (ModelError, InputError, SourceError, OutputError) as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
     except OSError as exc:  # an input the user may not read (a chmod 700 image folder)
         print(f"{PROG}: error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
+    except DadiffError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)

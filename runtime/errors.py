@@ -1,4 +1,9 @@
-"""Exceptions the runtime raises for problems a user can fix (as opposed to bugs)."""
+"""Exceptions for problems a user can fix (as opposed to bugs), and the one-line reporting every command shares.
+
+`DadiffError` is the base of every exception class the project defines (runtime/, drone/, export/, models/), so
+that an entry point catches one class; each subclass also keeps the built-in base callers relied on before
+(`ModelError` is a ValueError, `UnreadableFile` an OSError). Torch-free: the runtime and the drone import it.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +11,11 @@ import argparse
 from typing import NoReturn
 
 
-class ModelError(ValueError):
+class DadiffError(Exception):
+    """A problem a user can fix, reported by the commands as one line and exit status 2."""
+
+
+class ModelError(DadiffError, ValueError):
     """A model folder or file is missing, unreadable, or not a valid dadiff model.
 
     The message is one line naming the file and, where it applies, the metadata key. A ValueError, as
@@ -14,7 +23,7 @@ class ModelError(ValueError):
     """
 
 
-class InputError(ValueError):
+class InputError(DadiffError, ValueError):
     """A caller-supplied value is unusable: init box, frame, preset, override, provider, threads."""
 
 

@@ -27,12 +27,14 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from .errors import DadiffError
+
 CLIP = 48  # frames every worker run loads, whatever its update count
 UPDATES = (4, 36)  # the two update counts whose difference is counted
 _TOTALS = re.compile(r"^(?:summary|totals):\s+(\d+)", re.MULTILINE)
 
 
-class InstructionCountError(Exception):
+class InstructionCountError(DadiffError):
     """One line for the user."""
 
 

@@ -16,6 +16,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from .errors import DadiffError
 from .files import RowFile
 from .sources import Frame, folder_inputs
 
@@ -29,7 +30,7 @@ STATE_COLOURS = {
 }
 
 
-class OutputError(Exception):
+class OutputError(DadiffError):
     """An output file cannot be written (one-line message)."""
 
 

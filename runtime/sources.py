@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .errors import DadiffError
 from .user_files import kind_of, read_user_text
 
 IMAGE_EXTS = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm"}
@@ -29,7 +30,7 @@ FILE_FAILURES = 25
 LIVE_FAILURES = 500  # about 5-20 s of a dead stream before giving up
 
 
-class SourceError(Exception):
+class SourceError(DadiffError):
     """A source cannot be opened or yields nothing (one-line message)."""
 
 

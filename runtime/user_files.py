@@ -12,6 +12,8 @@ import os
 import stat
 from pathlib import Path
 
+from .errors import DadiffError
+
 MIB = 1 << 20
 SETTINGS_LIMIT = 1 * MIB  # configs and keys: a few hundred bytes in practice
 DATA_LIMIT = 256 * MIB  # ground truth, detections, indexes: the longest real ones are a few MiB
@@ -20,7 +22,7 @@ _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, 
           (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
 
 
-class UnreadableFile(OSError):
+class UnreadableFile(DadiffError, OSError):
     """A file that is not a regular file or is larger than its bound (errno EINVAL or EFBIG)."""
 
 

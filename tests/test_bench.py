@@ -29,7 +29,8 @@ def _report(capsys: pytest.CaptureFixture[str], argv: list[str]) -> dict:
 
 
 def test_report_has_every_stage_and_memory(model_dir: Path, capsys) -> None:
-    report = _report(capsys, [str(model_dir), "--frames", "40", "--clip", "15", "--warmup", "3", "--threads", "1"])
+    report = _report(capsys, ["--model", str(model_dir), "--max-frames", "40", "--clip", "15", "--warmup", "3",
+                              "--threads", "1"])
     (result,) = report["results"]
     assert result["frames"] == 40 and result["fps"] > 0
     for stage in (*STAGES, "template"):
@@ -41,8 +42,8 @@ def test_report_has_every_stage_and_memory(model_dir: Path, capsys) -> None:
 
 
 def test_two_models_side_by_side_with_night_success(model_dir: Path, capsys) -> None:
-    argv = [str(model_dir), str(model_dir), "--frames", "10", "--clip", "8", "--warmup", "1", "--success", "1",
-            "--success-frames", "12"]
+    argv = ["--model", str(model_dir), "--model", str(model_dir), "--max-frames", "10", "--clip", "8", "--warmup", "1",
+            "--success", "1", "--success-frames", "12"]
     assert bench_cli.main(argv) == 0
     out = capsys.readouterr().out
     for label in ("search graph (ONNX)", "MAVLink 275 encode", "FPS end to end", "night success", "peak RSS"):
@@ -51,8 +52,9 @@ def test_two_models_side_by_side_with_night_success(model_dir: Path, capsys) -> 
 
 
 def test_torch_comparison_and_step_sweep(lite_checkpoint: Path, lite_model_dir: Path, capsys) -> None:
-    argv = [str(lite_model_dir), "--checkpoint", str(lite_checkpoint), "--compare-torch", "--sweep-steps", "1",
-            "--frames", "4", "--clip", "6", "--warmup", "1", "--threads", "1"]
+    argv = ["--model", str(lite_model_dir), "--checkpoint", str(lite_checkpoint), "--compare-torch", "--sweep-steps",
+            "1",
+            "--max-frames", "4", "--clip", "6", "--warmup", "1", "--threads", "1"]
     report = _report(capsys, argv)
     first, k1 = report["results"]
     assert first["torch"]["crops"] == 5 and first["torch"]["ratio"] > 0
@@ -64,7 +66,7 @@ def test_torch_comparison_and_step_sweep(lite_checkpoint: Path, lite_model_dir: 
 def test_nano_row_and_ratio(model_dir: Path, capsys) -> None:
     if not nano_available():
         pytest.skip(nano_problem())
-    argv = [str(model_dir), "--frames", "6", "--clip", "5", "--warmup", "1", "--threads", "1", "--nano",
+    argv = ["--model", str(model_dir), "--max-frames", "6", "--clip", "5", "--warmup", "1", "--threads", "1", "--nano",
             "--success", "1", "--success-frames", "5"]
     assert bench_cli.main(argv) == 0
     out = capsys.readouterr().out
@@ -83,7 +85,7 @@ def test_nano_row_and_ratio(model_dir: Path, capsys) -> None:
 
 
 def test_nano_without_weights_is_one_line(model_dir: Path, tmp_path: Path, capsys) -> None:
-    assert bench_cli.main([str(model_dir), "--nano", "--nano-dir", str(tmp_path), "--frames", "2"]) == 2
+    assert bench_cli.main(["--model", str(model_dir), "--nano", "--nano-dir", str(tmp_path), "--max-frames", "2"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "nanotrack_backbone_sim.onnx" in err
     if opencv_available("nano"):  # named dadiff-eval's option, --tracker nano, which dadiff-bench does not have
@@ -94,7 +96,7 @@ def test_nano_without_weights_is_one_line(model_dir: Path, tmp_path: Path, capsy
 def test_nano_left_out_by_default_says_why(model_dir: Path, tmp_path: Path, capsys, monkeypatch) -> None:
     """Without its weights, TrackerNano used to vanish from the report without a word."""
     monkeypatch.setenv("DADIFF_NANO_DIR", str(tmp_path))
-    argv = [str(model_dir), "--frames", "2", "--clip", "3", "--warmup", "0", "--threads", "1", "--json"]
+    argv = ["--model", str(model_dir), "--max-frames", "2", "--clip", "3", "--warmup", "0", "--threads", "1", "--json"]
     assert bench_cli.main(argv) == 0
     captured = capsys.readouterr()
     assert "nano" not in json.loads(captured.out)  # stdout stays one JSON document
@@ -110,27 +112,30 @@ def test_nano_left_out_by_default_says_why(model_dir: Path, tmp_path: Path, caps
 
 def test_peak_is_measured(model_dir: Path, capsys) -> None:
     pytest.importorskip("torch")  # --peak builds its probe graph with the export side
-    report = _report(capsys, [str(model_dir), "--frames", "3", "--clip", "5", "--warmup", "0", "--peak"])
+    report = _report(capsys, ["--model", str(model_dir), "--max-frames", "3", "--clip", "5", "--warmup", "0", "--peak"])
     assert report["peak_gflops"] > 1
 
 
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
-        (["/no/such/model"], "/no/such/model"),
-        (["{model}", "--compare-torch", "--frames", "2"], "checkpoint.pt: checkpoint not found"
+        (["--model", "/no/such/model"], "/no/such/model"),
+        (["--model", "{model}", "--compare-torch", "--max-frames", "2"], "checkpoint.pt: checkpoint not found"
          if importlib.util.find_spec("torch") else "--compare-torch needs the export side"),  # companion install
-        (["{model}", "--sweep-steps", "one", "--checkpoint", "{model}/search.onnx"], "--sweep-steps"),
-        (["{model}", "--success", "-1"], "argument --success: expected an integer of at least 0"),
-        (["{model}", "--interleave", "-5"], "argument --interleave: expected an integer from 0 to 1000000"),
-        (["{model}", "--hp", "foo=1", "--frames", "2"], "unknown override 'foo'"),
+        (["--model", "{model}", "--sweep-steps", "one", "--checkpoint", "{model}/search.onnx"], "--sweep-steps"),
+        (["--model", "{model}", "--success", "-1"], "argument --success: expected an integer of at least 0"),
+        (["--model", "{model}", "--interleave", "-5"], "argument --interleave: expected an integer from 0 to 1000000"),
+        (["--model", "{model}", "--hp", "foo=1", "--max-frames", "2"], "unknown override 'foo'"),
         # checked at parsing, naming the option: a traceback, a temporary file's name, a numpy allocation error
-        (["{model}", "--seed", "-1", "--frames", "2"], "argument --seed: expected an integer of at least 0"),
-        (["{model}", "--clip", "1", "--frames", "2"], "argument --clip: expected an integer from 2 to 1000"),
-        (["{model}", "--frames", "1000000000000"], "argument --frames: expected an integer from 1 to 1000000"),
-        (["{model}", "--warmup", "-1"], "argument --warmup: expected an integer from 0"),
+        (["--model", "{model}", "--seed", "-1", "--max-frames", "2"],
+         "argument --seed: expected an integer of at least 0"),
+        (["--model", "{model}", "--clip", "1", "--max-frames", "2"],
+         "argument --clip: expected an integer from 2 to 1000"),
+        (["--model", "{model}", "--max-frames", "1000000000000"],
+         "argument --max-frames: expected an integer from 1 to 1000000"),
+        (["--model", "{model}", "--warmup", "-1"], "argument --warmup: expected an integer from 0"),
         # was silently ignored
-        (["{model}", "--checkpoint", "nope.pt", "--frames", "2", "--clip", "3"],
+        (["--model", "{model}", "--checkpoint", "nope.pt", "--max-frames", "2", "--clip", "3"],
          "--checkpoint applies to --compare-torch and --sweep-steps only"),
     ],
 )

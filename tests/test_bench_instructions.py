@@ -73,7 +73,7 @@ def test_report_sets_each_model_against_tracker_nano(model_dir: Path, monkeypatc
     monkeypatch.setattr(bench_cli, "valgrind_path", lambda: "/usr/bin/valgrind")
     monkeypatch.setattr(bench_cli, "_use_nano", lambda args: (True, None))
     monkeypatch.setattr(bench_cli, "nano_files", lambda folder: (Path("/weights/v2/backbone.onnx"), None))
-    argv = [str(model_dir), "--instructions", "--clip", "5"]
+    argv = ["--model", str(model_dir), "--instructions", "--clip", "5"]
     assert bench_cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "without AVX-512" in out and counted == ["model", "nano"]
@@ -86,7 +86,7 @@ def test_report_sets_each_model_against_tracker_nano(model_dir: Path, monkeypatc
 
 def test_without_valgrind_is_one_line(model_dir: Path, monkeypatch, capsys) -> None:
     monkeypatch.setattr(instructions.shutil, "which", lambda name: None)
-    assert bench_cli.main([str(model_dir), "--instructions"]) == 2
+    assert bench_cli.main(["--model", str(model_dir), "--instructions"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "needs valgrind" in err
 

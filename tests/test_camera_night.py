@@ -136,7 +136,7 @@ def _day_dataset(root: Path, sequences: int = 2, frames: int = 4) -> Path:
 def test_night_command_writes_a_day_and_night_dataset(tmp_path: Path, capsys):
     source = _day_dataset(tmp_path / "days")
     out = tmp_path / "camera"
-    assert eval_main(["night", "--dataset", str(source), "--out", str(out), "--seed", "3"]) == 0
+    assert eval_main(["night", "--dataset", str(source), "--output", str(out), "--seed", "3"]) == 0
     printed = capsys.readouterr().out
     assert "wrote 2 day + 2 night sequences (camera night, seed 3)" in printed and "mean luma" in printed
     dataset = load_dataset(out)
@@ -160,7 +160,7 @@ def test_night_command_writes_a_day_and_night_dataset(tmp_path: Path, capsys):
 def test_night_command_is_deterministic_per_sequence_name(tmp_path: Path, capsys):
     source = _day_dataset(tmp_path / "days")
     for name, pattern in (("all", []), ("one", ["--sequences", "seq001_day"])):
-        assert eval_main(["night", "--dataset", str(source), "--out", str(tmp_path / name), *pattern]) == 0
+        assert eval_main(["night", "--dataset", str(source), "--output", str(tmp_path / name), *pattern]) == 0
     capsys.readouterr()
     frames = [sorted((tmp_path / name / "seq001_night" / "img").iterdir()) for name in ("all", "one")]
     assert [p.read_bytes() for p in frames[0]] == [p.read_bytes() for p in frames[1]]
@@ -181,7 +181,7 @@ def _with_a_file(folder: Path) -> Path:
 )
 def test_night_command_bad_output_is_one_line_and_exit_2(tmp_path: Path, capsys, make_out, message):
     source = _day_dataset(tmp_path / "days", sequences=1, frames=2)
-    assert eval_main(["night", "--dataset", str(source), "--out", str(make_out(tmp_path))]) == 2
+    assert eval_main(["night", "--dataset", str(source), "--output", str(make_out(tmp_path))]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
 
@@ -189,6 +189,6 @@ def test_night_command_bad_output_is_one_line_and_exit_2(tmp_path: Path, capsys,
 def test_night_command_unreadable_frame_is_one_line_and_exit_2(tmp_path: Path, capsys):
     source = _day_dataset(tmp_path / "days", sequences=1, frames=2)
     (source / "seq000_day" / "img" / "0002.jpg").write_bytes(b"not a jpeg")
-    assert eval_main(["night", "--dataset", str(source), "--out", str(tmp_path / "out")]) == 2
+    assert eval_main(["night", "--dataset", str(source), "--output", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "0002.jpg: cannot be read as an image" in err

@@ -181,19 +181,19 @@ def _one_error_line(capsys) -> str:
 
 def test_cli_cuts_a_dataset_and_refuses_bad_input_in_one_line(tmp_path, capsys):
     root = _dataset(tmp_path / "film", sequences=2, frames=5)
-    assert main(["cutouts", "--dataset", str(root), "--out", str(tmp_path / "cuts"), "--licence", "CC0",
+    assert main(["cutouts", "--dataset", str(root), "--output", str(tmp_path / "cuts"), "--licence", "CC0",
                  "--every", "2"]) == 0
     assert "wrote 6 cut-outs" in capsys.readouterr().out
-    assert main(["cutouts", "--dataset", str(tmp_path / "none"), "--out", str(tmp_path / "c2"), "--licence", "x"]) == 2
+    assert main(["cutouts", "--dataset", str(tmp_path / "none"), "-o", str(tmp_path / "c2"), "--licence", "x"]) == 2
     assert "no such dataset folder" in _one_error_line(capsys)
-    assert main(["cutouts", "--dataset", str(root), "--out", str(tmp_path / "c3"), "--licence", "x",
+    assert main(["cutouts", "--dataset", str(root), "--output", str(tmp_path / "c3"), "--licence", "x",
                  "--min-height", "0"]) == 2
     assert "--min-height 0" in _one_error_line(capsys)
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x.txt").write_text("x")
-    assert main(["cutouts", "--dataset", str(root), "--out", str(tmp_path / "full"), "--licence", "x"]) == 2
+    assert main(["cutouts", "--dataset", str(root), "--output", str(tmp_path / "full"), "--licence", "x"]) == 2
     assert "holds no cut-out index" in _one_error_line(capsys)
-    assert main(["generate", "--out", str(tmp_path / "g"), "--cutouts", str(tmp_path / "cuts")]) == 2
+    assert main(["generate", "--output", str(tmp_path / "g"), "--cutouts", str(tmp_path / "cuts")]) == 2
     assert "--cutouts needs --source library" in _one_error_line(capsys)
 
 

@@ -112,7 +112,7 @@ def test_command_writes_day_and_night_sequences_from_a_moving_camera(tmp_path: P
     dets = [np.r_[d, [[200, 20, 30, 10, 0.9], [150, 150, 15, 40, 0.2]]] for d in dets]  # too wide; too unsure
     det = _write_det(tmp_path / "det.txt", dets)
     out = tmp_path / "bench"
-    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--out", str(out),
+    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--output", str(out),
                       "--night", night]) == 0
     assert "wrote 1 day + 1 night sequences" in capsys.readouterr().out
     assert json.loads((out / "benchmark.json").read_text())["night"] == night
@@ -131,7 +131,7 @@ def test_the_day_half_of_a_written_benchmark_is_a_training_source(tmp_path: Path
     truth = _walk(40, 90, 2, 40)
     video = _write_video(_panning_video([truth], 40), tmp_path / "pan")
     det = _write_det(tmp_path / "det.txt", _detections([truth], np.random.default_rng(4)))
-    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--out",
+    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--output",
                       str(tmp_path / "bench")]) == 0
     source = make_day_source({"kind": "sequences", "root": str(tmp_path / "bench"), "match": "*_day"})
     assert [frames[0].parent.parent.name for frames, _, _ in source.sequences] == ["vid001_day"]
@@ -151,7 +151,7 @@ def test_a_bad_detection_line_is_named_with_its_number(tmp_path: Path, capsys, e
     truth = _walk(40, 90, 2, 40)
     video = _write_video(_panning_video([truth], 40), tmp_path / "pan")
     det = _write_det(tmp_path / "det.txt", _detections([truth], np.random.default_rng(6)), extra)
-    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--out",
+    assert eval_main(["pseudo-label", "--video", str(video), "--detections", str(det), "--output",
                       str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
@@ -173,7 +173,7 @@ def test_bad_settings_are_one_line_and_exit_2(tmp_path: Path, capsys, monkeypatc
     _write_det(tmp_path / "det.txt", _detections([truth], np.random.default_rng(7)))
     monkeypatch.chdir(tmp_path)
     try:
-        status = eval_main(["pseudo-label", "--video", str(video), "--detections", "det.txt", "--out", "out", *args])
+        status = eval_main(["pseudo-label", "--video", str(video), "--detections", "det.txt", "--output", "out", *args])
     except SystemExit as exc:  # a usage error, found by the argument parser
         status = exc.code
     assert status == 2

@@ -45,7 +45,7 @@ def test_command_writes_each_tile_box_in_frame_pixels_and_keeps_the_wanted_class
     for i in range(3):
         cv2.imwrite(str(video / f"{i:04d}.png"), np.full((100, 400, 3), 60 * i, np.uint8))
     det = tmp_path / "det.txt"
-    assert eval_main(["detect", "--video", str(video), "--detector", str(model), "--out", str(det),
+    assert eval_main(["detect", "--video", str(video), "--detector", str(model), "--output", str(det),
                       "--tiles", "3"]) == 0
     assert "wrote 12 detections of class 1 in 3 frames" in capsys.readouterr().out
     frame1 = [line.split(",") for line in det.read_text().splitlines() if line.startswith("1,")]
@@ -75,7 +75,7 @@ def test_a_bad_detector_is_one_line_and_exit_2(tmp_path: Path, capsys, make, mes
     for i in range(2):
         cv2.imwrite(str(video / f"{i:04d}.png"), np.zeros((50, 80, 3), np.uint8))
     model = make(tmp_path)
-    assert eval_main(["detect", "--video", str(video), "--detector", str(model), "--out", str(tmp_path / "d.txt")]) == 2
+    assert eval_main(["detect", "--video", str(video), "--detector", str(model), "-o", str(tmp_path / "d.txt")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
 
@@ -88,7 +88,7 @@ def test_detect_out_never_replaces_the_video_its_frames_or_the_detector(tmp_path
         cv2.imwrite(str(video / f"{i:04d}.png"), np.zeros((50, 80, 3), np.uint8))
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     for out, message in [(video / "0000.png", "lies inside the input folder"), (model, "names the input file")]:
-        assert eval_main(["detect", "--video", str(video), "--detector", str(model), "--out", str(out)]) == 2
+        assert eval_main(["detect", "--video", str(video), "--detector", str(model), "--output", str(out)]) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before

@@ -37,11 +37,11 @@ def bench(tmp_path_factory):
         main(
             [
                 "generate",
-                "--out",
+                "--output",
                 str(root),
                 "--sequences",
                 "2",
-                "--frames",
+                "--max-frames",
                 "4",
                 "--seed",
                 "3",
@@ -70,7 +70,7 @@ def _gt(bench, name):
 
 def test_run_writes_pysot_results_and_resumes(bench, corr_model, tmp_path, capsys):
     results = tmp_path / "results"
-    args = ["run", "--model", str(corr_model), "--dataset", str(bench), "--results", str(results), "--no-progress"]
+    args = ["run", "--model", str(corr_model), "--dataset", str(bench), "--output", str(results), "--no-progress"]
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "corr: tracked 4 sequences" in out and "Succ." in out and "NPrec@0.2" in out
@@ -128,7 +128,7 @@ def test_score_against_prints_the_paired_difference(bench, tmp_path, capsys):
 def test_opencv_baselines(bench, tmp_path, capsys, kind):
     if not opencv_available(kind):
         pytest.skip("opencv-contrib is not installed")
-    assert main(["run", "--tracker", kind, "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 0
+    assert main(["run", "--tracker", kind, "--dataset", str(bench), "--output", str(tmp_path), "--no-progress"]) == 0
     assert f"{kind.upper()}: tracked 4 sequences" in capsys.readouterr().out
     assert read_result(tmp_path / "bench" / kind.upper() / "seq002_day.txt").shape == (4, 4)
 
@@ -163,7 +163,7 @@ def test_an_opencv_tracker_that_raises_is_a_failed_update(monkeypatch):
 def test_nano_baseline(bench, tmp_path, capsys):
     if not nano_available():
         pytest.skip(nano_problem())
-    assert main(["run", "--tracker", "nano", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress",
+    assert main(["run", "--tracker", "nano", "--dataset", str(bench), "--output", str(tmp_path), "--no-progress",
                  "--no-plots"]) == 0
     assert "NANO: tracked 4 sequences" in capsys.readouterr().out
     boxes = read_result(tmp_path / "bench" / "NANO" / "seq001_night.txt")
@@ -173,13 +173,13 @@ def test_nano_baseline(bench, tmp_path, capsys):
 def test_nano_without_weights_is_one_line_exit_2(bench, tmp_path, capsys):
     empty = tmp_path / "no-weights"
     empty.mkdir()
-    args = ["run", "--tracker", "nano", "--nano-dir", str(empty), "--dataset", str(bench), "--results",
+    args = ["run", "--tracker", "nano", "--nano-dir", str(empty), "--dataset", str(bench), "--output",
             str(tmp_path), "--no-progress"]
     assert main(args) == 2
     line = _one_error_line(capsys)
     assert "nanotrack_backbone_sim.onnx and nanotrack_head_sim.onnx" in line and str(empty) in line
     assert line.startswith("dadiff-eval: error: --tracker nano needs") and "--nano-dir DIR or DADIFF_NANO_DIR" in line
-    assert main(["run", "--tracker", "csrt", "--nano-dir", str(empty), "--dataset", str(bench), "--results",
+    assert main(["run", "--tracker", "csrt", "--nano-dir", str(empty), "--dataset", str(bench), "--output",
                  str(tmp_path), "--no-progress"]) == 2
     assert "--nano-dir does not apply" in _one_error_line(capsys)
 
@@ -188,11 +188,11 @@ def test_run_takes_tracker_settings(corr_model, bench, tmp_path, capsys):
     """`--hp` reaches the evaluated tracker; a wrong key or a baseline tracker is one line and exit 2."""
     from dadiff.runtime.evaluation.cli import _make_tracker, build_parser
 
-    args = build_parser().parse_args(["run", "--model", str(corr_model), "--dataset", str(bench), "--results",
+    args = build_parser().parse_args(["run", "--model", str(corr_model), "--dataset", str(bench), "--output",
                                       str(tmp_path), "--hp", "motion_compensation=0,lost_frames=5"])
     params = _make_tracker(args)[0].tracker.params
     assert (params.motion_compensation, params.lost_frames) == (0.0, 5)
-    base = ["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]
+    base = ["run", "--dataset", str(bench), "--output", str(tmp_path), "--no-progress"]
     assert main([*base, "--model", str(corr_model), "--hp", "foo=1"]) == 2
     assert "unknown override 'foo'" in _one_error_line(capsys)
     assert main([*base, "--tracker", "csrt", "--hp", "lost_frames=5"]) == 2
@@ -217,18 +217,18 @@ def test_bad_input_gives_one_line_and_exit_2(bench, tmp_path, capsys):
         (short / f"{seq}.txt").write_text("1,2,3,4\n")
     assert main(["score", "--dataset", str(bench), str(short)]) == 2
     assert "1 box, but seq001_day has 4 ground-truth frames" in _one_error_line(capsys)  # was "1 boxes"
-    assert main(["generate", "--out", str(bench), "--sequences", "1"]) == 2
+    assert main(["generate", "--output", str(bench), "--sequences", "1"]) == 2
     assert "not an empty folder" in _one_error_line(capsys)
 
 
 def test_run_without_a_model_explains_that_none_ships(bench, tmp_path, capsys, no_shipped_model):
-    assert main(["run", "--dataset", str(bench), "--results", str(tmp_path), "--no-progress"]) == 2
+    assert main(["run", "--dataset", str(bench), "--output", str(tmp_path), "--no-progress"]) == 2
     assert "no trained default model" in _one_error_line(capsys)
 
 
 def test_sequence_filter_does_not_swallow_result_folders(bench, tmp_path, capsys):
     results = tmp_path / "results"
-    assert main(["run", "--dataset", str(bench), "--results", str(results), "--tracker", "dadiff",
+    assert main(["run", "--dataset", str(bench), "--output", str(results), "--tracker", "dadiff",
                  "--model", "dadiff-mobile", "--no-progress", "--no-plots"]) == 0
     capsys.readouterr()
     folder = results / bench.name
@@ -248,7 +248,7 @@ def _status(argv: list[str]) -> int:
 @pytest.mark.parametrize("name", ["../../evil", "", ".", "..", "a/b"])
 def test_run_name_must_be_one_folder_name(bench, tmp_path, capsys, name):
     results = tmp_path / "deep" / "results"
-    assert _status(["run", "--dataset", str(bench), "--results", str(results), "--tracker", "dadiff",
+    assert _status(["run", "--dataset", str(bench), "--output", str(results), "--tracker", "dadiff",
                     "--model", "dadiff-mobile", "--name", name, "--no-progress", "--no-plots"]) == 2
     assert "argument --name: expected a folder name" in _one_error_line(capsys)
     assert list(tmp_path.rglob("*")) == []  # was: ../../evil beside the results, "" the model's name
@@ -257,14 +257,14 @@ def test_run_name_must_be_one_folder_name(bench, tmp_path, capsys, name):
 def test_run_and_score_outputs_never_land_in_the_dataset(bench, tmp_path, capsys):
     before = {p: p.read_bytes() for p in bench.rglob("*") if p.is_file()}
     run = ["run", "--dataset", str(bench), "--tracker", "dadiff", "--model", "dadiff-mobile", "--no-progress"]
-    assert main([*run, "--results", str(bench.parent), "--no-plots"]) == 2  # <results>/bench/<name> is in bench
-    assert "--results lies inside the input folder" in _one_error_line(capsys)
-    assert main([*run, "--results", str(tmp_path / "r"), "--plots", str(bench / "seq001_day" / "img")]) == 2
+    assert main([*run, "--output", str(bench.parent), "--no-plots"]) == 2  # <results>/bench/<name> is in bench
+    assert "--output lies inside the input folder" in _one_error_line(capsys)
+    assert main([*run, "--output", str(tmp_path / "r"), "--plots", str(bench / "seq001_day" / "img")]) == 2
     assert "--plots lies inside the input folder" in _one_error_line(capsys)
     video = tmp_path / "v.mp4"
     video.write_bytes(b"not results")
-    assert main([*run, "--results", str(video), "--no-plots"]) == 2  # was: every sequence tracked, then an error
-    assert "v.mp4: is a file, not a folder; --results needs a folder" in _one_error_line(capsys)
+    assert main([*run, "--output", str(video), "--no-plots"]) == 2  # was: every sequence tracked, then an error
+    assert "v.mp4: is a file, not a folder; --output needs a folder" in _one_error_line(capsys)
     assert main(["score", "--dataset", str(bench), "--plots", str(bench / "plots"), str(tmp_path)]) == 2
     assert "--plots lies inside the input folder" in _one_error_line(capsys)
     assert {p: p.read_bytes() for p in bench.rglob("*") if p.is_file()} == before
@@ -279,7 +279,7 @@ def test_run_and_score_outputs_never_land_in_the_dataset(bench, tmp_path, capsys
 )
 def test_generate_checks_seed_and_size_before_making_the_folder(tmp_path, capsys, option, message):
     out = tmp_path / "g"
-    assert _status(["generate", "--out", str(out), "--sequences", "1", "--frames", "3", *option]) == 2
+    assert _status(["generate", "--output", str(out), "--sequences", "1", "--max-frames", "3", *option]) == 2
     assert message in _one_error_line(capsys)
     assert not out.exists()  # was: a traceback (numpy's seed, OpenCV's allocation) and an empty folder
 
@@ -333,7 +333,7 @@ def test_nano_dir_default_is_the_environment_then_the_checkout(tmp_path, monkeyp
 
 
 def _run(bench, results, *extra):
-    return ["run", "--dataset", str(bench), "--results", str(results), "--no-plots", "--no-progress", *extra]
+    return ["run", "--dataset", str(bench), "--output", str(results), "--no-plots", "--no-progress", *extra]
 
 
 def test_run_record_lets_the_same_settings_resume(bench, corr_model, tmp_path, capsys):
@@ -360,7 +360,7 @@ def test_run_into_a_folder_of_other_settings_is_refused(bench, corr_model, tmp_p
     assert main(_run(bench, results, "--model", str(corr_model), "--hp", "lr=0.05")) == 2
     line = _one_error_line(capsys)
     assert line == (f"dadiff-eval: error: {folder} holds results of other settings (--hp lr: 0.473 before, "
-                    "0.05 now): give --name NEW (or another --results) for these settings; nothing tracked")
+                    "0.05 now): give --name NEW (or another --output) for these settings; nothing tracked")
     assert main(_run(bench, results, "--model", str(corr_model), "--preset", "NUT_L")) == 2
     assert "(--hp window_influence: 0.401 before, 0.403 now)" in _one_error_line(capsys)
     other = write_other_model(tmp_path / "other" / "corr")
@@ -450,11 +450,11 @@ def test_run_draws_its_bar_only_on_a_terminal(bench, corr_model, tmp_path, capsy
 
     monkeypatch.setattr(eval_cli, "run_tracker", spy)
     base = ["run", "--dataset", str(bench), "--model", str(corr_model), "--no-plots"]
-    assert main([*base, "--results", str(tmp_path / "a")]) == 0
+    assert main([*base, "--output", str(tmp_path / "a")]) == 0
     assert seen == [False] and capsys.readouterr().err == ""  # captured stderr is no terminal: no bar lines
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
-    assert main([*base, "--results", str(tmp_path / "b")]) == 0
-    assert main([*base, "--results", str(tmp_path / "c"), "--no-progress"]) == 0
+    assert main([*base, "--output", str(tmp_path / "b")]) == 0
+    assert main([*base, "--output", str(tmp_path / "c"), "--no-progress"]) == 0
     assert seen == [False, True, False]
 
 
@@ -487,7 +487,7 @@ def test_generate_without_scikit_image_leaves_no_folder(tmp_path, capsys, monkey
     monkeypatch.setitem(sys.modules, "skimage.data", None)
     monkeypatch.setattr(photos, "_photos", photos._photos.__wrapped__)  # past the cache of loaded photos
     out = tmp_path / "g"
-    assert main(["generate", "--out", str(out), "--sequences", "1", "--frames", "2", "--workers", "1"]) == 2
+    assert main(["generate", "--output", str(out), "--sequences", "1", "--max-frames", "2", "--workers", "1"]) == 2
     assert "need scikit-image's photos, which are not installed here" in _one_error_line(capsys)
     assert not out.exists()
 

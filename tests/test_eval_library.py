@@ -377,7 +377,7 @@ def _small_library(folder: Path, split: str = "train") -> Path:
                                              "'packages.pkg.images[0].file'")])
 def test_a_malformed_index_is_one_line_naming_the_file_and_key(tmp_path, capsys, index, key):
     (tmp_path / "index.json").write_text(json.dumps(index))
-    for argv in (["data", "list"], ["data", "pack", "--out", str(tmp_path / "pack")]):
+    for argv in (["data", "list"], ["data", "pack", "--output", str(tmp_path / "pack")]):
         assert main([*argv, "--cache", str(tmp_path)]) == 2
         line = _one_error_line(capsys)
         assert "index.json: not a valid library index" in line and key in line, line
@@ -388,7 +388,7 @@ def test_a_malformed_index_is_one_line_naming_the_file_and_key(tmp_path, capsys,
                                                   ("0", "expected a number above 0")])
 def test_pack_budget_must_be_finite_and_positive(tmp_path, capsys, max_mib, message):
     with pytest.raises(SystemExit) as exit_:
-        main(["data", "pack", "--cache", str(_small_library(tmp_path / "lib")), "--out", str(tmp_path / "p"),
+        main(["data", "pack", "--cache", str(_small_library(tmp_path / "lib")), "--output", str(tmp_path / "p"),
               "--max-mib", max_mib])
     assert exit_.value.code == 2
     line = _one_error_line(capsys)
@@ -398,11 +398,11 @@ def test_pack_budget_must_be_finite_and_positive(tmp_path, capsys, max_mib, mess
 def test_pack_refuses_an_empty_result(tmp_path, capsys):
     """'packed  into P (0.0 MiB)' and exit 0 used to leave an empty pack."""
     library = str(_small_library(tmp_path / "lib"))
-    assert main(["data", "pack", "--cache", library, "--out", str(tmp_path / "p1"), "--max-mib", "0.0001"]) == 2
+    assert main(["data", "pack", "--cache", library, "--output", str(tmp_path / "p1"), "--max-mib", "0.0001"]) == 2
     assert "no image fits in the pack budget of 104 bytes" in _one_error_line(capsys)
     assert not (tmp_path / "p1").exists()
     test_only = str(_small_library(tmp_path / "test_only", split="test"))
-    assert main(["data", "pack", "--cache", test_only, "--out", str(tmp_path / "p2")]) == 2
+    assert main(["data", "pack", "--cache", test_only, "--output", str(tmp_path / "p2")]) == 2
     assert "no train images to pack" in _one_error_line(capsys)
-    assert main(["data", "pack", "--cache", library, "--out", str(tmp_path / "p3")]) == 0
+    assert main(["data", "pack", "--cache", library, "--output", str(tmp_path / "p3")]) == 0
     assert "background/train 1" in capsys.readouterr().out

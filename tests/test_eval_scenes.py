@@ -504,7 +504,7 @@ def test_gusts_need_the_library_source(tmp_path, capsys):
         write_benchmark(tmp_path / "g", 1, 2, 0, size=SMALL, workers=1, gusts=True)
     from dadiff.runtime.evaluation.cli import main
 
-    assert main(["generate", "--out", str(tmp_path / "c"), "--frames", "2", "--gusts"]) == 2
+    assert main(["generate", "--output", str(tmp_path / "c"), "--max-frames", "2", "--gusts"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "gusts need the library source" in err[0]
 
@@ -561,8 +561,8 @@ def test_library_benchmark_defaults_to_the_real_night(tmp_path, library):
 def test_generate_cli_writes_source_and_night(tmp_path, monkeypatch, capsys):
     from dadiff.runtime.evaluation.cli import main
 
-    args = ["generate", "--sequences", "1", "--frames", "2", "--size", "192x128", "--workers", "1"]
-    assert main([*args, "--out", str(tmp_path / "real"), "--night", "real"]) == 0
+    args = ["generate", "--sequences", "1", "--max-frames", "2", "--size", "192x128", "--workers", "1"]
+    assert main([*args, "--output", str(tmp_path / "real"), "--night", "real"]) == 0
     info = json.loads((tmp_path / "real" / "benchmark.json").read_text())
     assert (info["source"], info["night"]) == ("skimage", "real")
     assert "skimage pictures, real night" in capsys.readouterr().out
@@ -570,7 +570,7 @@ def test_generate_cli_writes_source_and_night(tmp_path, monkeypatch, capsys):
     module.open_library = lambda: None
     module.LibraryError = type("LibraryError", (Exception,), {})
     monkeypatch.setitem(sys.modules, "dadiff.runtime.evaluation.library", module)
-    assert main([*args, "--out", str(tmp_path / "lib"), "--source", "library"]) == 2
+    assert main([*args, "--output", str(tmp_path / "lib"), "--source", "library"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "run dadiff-eval data fetch first" in err[0]
     assert not (tmp_path / "lib").exists()

@@ -47,7 +47,7 @@ def test_coordinate_search_finds_the_peak_and_evaluates_each_setting_once():
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
     root = tmp_path_factory.mktemp("tune") / "bench"
-    args = ["generate", "--out", str(root), "--sequences", "2", "--frames", "6", "--seed", "5", "--size", "192x128",
+    args = ["generate", "-o", str(root), "--sequences", "2", "--max-frames", "6", "--seed", "5", "--size", "192x128",
             "--workers", "1"]
     assert main(args) == 0
     return root
@@ -57,14 +57,14 @@ def test_tune_start_trial_scores_what_run_scores(bench, tmp_path, capsys):
     """The in-memory loop must track exactly as `dadiff-eval run` does, or tuned values mean nothing."""
     out = tmp_path / "trials.csv"
     assert main(["tune", "--model", "dadiff-mobile", "--dataset", str(bench), "--grid", "penalty_k=0.02,0.3",
-                 "--rounds", "1", "--threads", "1", "--out", str(out)]) == 0
+                 "--rounds", "1", "--threads", "1", "--output", str(out)]) == 0
     printed = capsys.readouterr().out
     rows = list(csv.DictReader(open(out)))
     assert [r["penalty_k"] for r in rows] == ["0.088", "0.02", "0.3"]  # the model's default first
     best = max(rows, key=lambda r: float(r["success"]))
     assert f"success {float(best['success']):.3f}" in printed.splitlines()[-1]
 
-    assert main(["run", "--model", "dadiff-mobile", "--dataset", str(bench), "--results", str(tmp_path / "res"),
+    assert main(["run", "--model", "dadiff-mobile", "--dataset", str(bench), "--output", str(tmp_path / "res"),
                  "--threads", "1", "--no-plots", "--no-progress"]) == 0
     capsys.readouterr()
     assert main(["score", "--dataset", str(bench), "--json", str(tmp_path / "res" / "bench")]) == 0
@@ -84,10 +84,10 @@ def test_tune_out_never_replaces_input_or_other_files(bench, tmp_path, capsys):
     other = tmp_path / "notes.txt"
     other.write_text("mine\n")
     before = gt.read_bytes()
-    cases = [(gt, "--out lies inside the input folder"), (other, "--out exists and is not a trials CSV")]
+    cases = [(gt, "--output lies inside the input folder"), (other, "--output exists and is not a trials CSV")]
     for out, message in cases:
         assert main(["tune", "--model", "dadiff-mobile", "--dataset", str(bench), "--grid", "lr=0.3",
-                     "--rounds", "1", "--out", str(out)]) == 2
+                     "--rounds", "1", "--output", str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err
     assert gt.read_bytes() == before and other.read_text() == "mine\n"

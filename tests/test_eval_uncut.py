@@ -53,7 +53,7 @@ def _walker_clip() -> tuple[int, list, list[int]]:
 def test_clips_run_from_their_first_frame_to_the_video_end(tmp_path):
     truth = _truth(tmp_path / "truth", {"w": _walker_clip(), "z": (0, [BOX] * FRAMES, [0] * FRAMES)})
     assert eval_main(["uncut", "--video", str(_video(tmp_path / "v")), "--truth", str(truth),
-                      "--out", str(tmp_path / "out")]) == 0
+                      "--output", str(tmp_path / "out")]) == 0
     dataset = load_dataset(tmp_path / "out")
     clips = {s.name: s for s in dataset.sequences}
     assert sorted(clips) == ["w", "z"] and len(clips["w"]) == 8 and len(clips["z"]) == FRAMES
@@ -65,15 +65,15 @@ def test_clips_run_from_their_first_frame_to_the_video_end(tmp_path):
 def test_truth_of_the_wrong_length_or_a_box_on_an_absent_frame_is_refused(tmp_path, capsys):
     video = _video(tmp_path / "v")
     short = _truth(tmp_path / "short", {"w": (4, [BOX] * 5, [0] * 5)})
-    assert eval_main(["uncut", "--video", str(video), "--truth", str(short), "--out", str(tmp_path / "o1")]) == 2
+    assert eval_main(["uncut", "--video", str(video), "--truth", str(short), "--output", str(tmp_path / "o1")]) == 2
     assert "5 rows from frame 4, but" in capsys.readouterr().err
     boxed = _truth(tmp_path / "boxed", {"w": (4, [BOX] * 8, [0] * 7 + [1])})
-    assert eval_main(["uncut", "--video", str(video), "--truth", str(boxed), "--out", str(tmp_path / "o2")]) == 2
+    assert eval_main(["uncut", "--video", str(video), "--truth", str(boxed), "--output", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "a box on a frame marked absent" in err
     outside = _truth(tmp_path / "outside", {"w": _walker_clip()})
     (outside / "clips.json").write_text(json.dumps({"../w": {"first_frame": 4}}))
-    assert eval_main(["uncut", "--video", str(video), "--truth", str(outside), "--out", str(tmp_path / "o3")]) == 2
+    assert eval_main(["uncut", "--video", str(video), "--truth", str(outside), "--output", str(tmp_path / "o3")]) == 2
     assert "not a plain folder name" in capsys.readouterr().err
 
 
@@ -86,10 +86,10 @@ def _results(folder: Path, name: str, boxes: list, states: list[str]) -> None:
 def test_tracking_on_an_absent_frame_counts_as_off_and_unknown_frames_do_not_count(tmp_path, capsys):
     truth = _truth(tmp_path / "truth", {"w": _walker_clip()})
     video = _video(tmp_path / "v")
-    eval_main(["uncut", "--video", str(video), "--truth", str(truth), "--out", str(tmp_path / "d")])
+    eval_main(["uncut", "--video", str(video), "--truth", str(truth), "--output", str(tmp_path / "d")])
     dataset = load_dataset(tmp_path / "d")
     both = _truth(tmp_path / "truth2", {"w": _walker_clip(), "z": (0, [BOX] * FRAMES, [0] * FRAMES)})
-    eval_main(["uncut", "--video", str(video), "--truth", str(both), "--out", str(tmp_path / "d2")])
+    eval_main(["uncut", "--video", str(video), "--truth", str(both), "--output", str(tmp_path / "d2")])
     post = [60, 20, 8, 20]  # a static look-alike far from the person
     # on the person in view; on the post at the crossing (unknown: not counted) and after the person left
     _results(tmp_path / "r" / "honest", "w", [BOX] * 4 + [post] * 4, ["init"] + ["tracking"] * 3 + ["lost"] * 4)
@@ -120,7 +120,7 @@ def test_night_clips_are_the_video_rendered_at_night_once_per_seed(tmp_path):
     video = _video(tmp_path / "v")
     for out, night in (("day", []), ("n3", ["--night-seed", "3"]), ("n3b", ["--night-seed", "3"]),
                        ("n4", ["--night-seed", "4"])):
-        assert eval_main(["uncut", "--video", str(video), "--truth", str(truth), "--out", str(tmp_path / out),
+        assert eval_main(["uncut", "--video", str(video), "--truth", str(truth), "--output", str(tmp_path / out),
                           *night]) == 0
     clips = {out: load_dataset(tmp_path / out).sequences[0] for out in ("day", "n3", "n3b", "n4")}
     assert {len(c) for c in clips.values()} == {8}
@@ -133,7 +133,7 @@ def test_night_clips_are_the_video_rendered_at_night_once_per_seed(tmp_path):
 
 def test_results_without_states_are_refused_in_one_line(tmp_path, capsys):
     truth = _truth(tmp_path / "truth", {"w": _walker_clip()})
-    eval_main(["uncut", "--video", str(_video(tmp_path / "v")), "--truth", str(truth), "--out", str(tmp_path / "d")])
+    eval_main(["uncut", "--video", str(_video(tmp_path / "v")), "--truth", str(truth), "--output", str(tmp_path / "d")])
     (tmp_path / "r" / "old").mkdir(parents=True)
     write_result(tmp_path / "r" / "old" / "w.txt", [BOX] * 8)
     assert eval_main(["uncut-score", "--dataset", str(tmp_path / "d"), str(tmp_path / "r" / "old")]) == 2

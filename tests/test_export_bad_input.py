@@ -136,7 +136,7 @@ BAD_TRAIN = [
 def test_train_refuses_bad_day_data_and_seeds_up_front(tmp_path, capsys, text: str, message: str) -> None:
     config = tmp_path / "c.toml"
     config.write_text(text + "\n")
-    assert train.main(["--config", str(config), "--out", str(tmp_path / "run"), "--show-config"]) == 2
+    assert train.main(["--config", str(config), "--output", str(tmp_path / "run"), "--show-config"]) == 2
     line = _one_error(capsys, "dadiff-train")
     assert message in line and str(config) in line
     assert not (tmp_path / "run").exists()

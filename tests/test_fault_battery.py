@@ -312,12 +312,13 @@ def _runtime_cases(root: Path, rng: random.Random) -> list[dict[str, Any]]:
         add("hp", run, ["--video", str(root / "base.mp4"), "--init", BOX, "--model", str(model), "--max-frames", "8",
                         "--hp", _hp(rng)], strict=False)
     for i in range(N_BENCH_MODELS):
-        add("model", "dadiff.runtime.bench_cli", [str(root / f"model{3 * i}"), "--clip", "4", "--frames", "2",
-                                                  "--warmup", "0", "--no-nano", "--json"], strict=False)
+        add("model", "dadiff.runtime.bench_cli", ["--model", str(root / f"model{3 * i}"), "--clip", "4",
+                                                  "--max-frames", "2", "--warmup", "0", "--no-nano", "--json"],
+            strict=False)
     dataset = root / "bench"
     _sequence(dataset / "seq001", _frames(8))
     for i in range(N_EVAL_MODELS):
-        add("model", "dadiff.runtime.evaluation.cli", ["run", "--dataset", str(dataset), "--results",
+        add("model", "dadiff.runtime.evaluation.cli", ["run", "--dataset", str(dataset), "--output",
             str(root / f"res{i}"), "--model", str(root / f"model{i}"), "--no-progress", "--no-plots"], strict=False)
     for i in range(N_EVAL_RESULTS):
         results = root / f"results{i}" / "T"
@@ -331,7 +332,7 @@ def _runtime_cases(root: Path, rng: random.Random) -> list[dict[str, Any]]:
         seq = _sequence(damaged / "seq001", _frames(8))
         target = seq / "groundtruth_rect.txt" if i % 2 else rng.choice(sorted((seq / "img").iterdir()))
         target.write_bytes(mutate(target.read_bytes(), rng))
-        add("dataset", "dadiff.runtime.evaluation.cli", ["run", "--dataset", str(damaged), "--results",
+        add("dataset", "dadiff.runtime.evaluation.cli", ["run", "--dataset", str(damaged), "--output",
             str(root / f"dres{i}"), "--model", str(model), "--no-progress", "--no-plots"], strict=False)
     _pseudo_label_cases(root, rng, add)
     return cases
@@ -346,14 +347,14 @@ def _pseudo_label_cases(root: Path, rng: random.Random, add: Any) -> None:
         det = root / f"det{i}.txt"
         det.write_bytes(mutate(truth, rng))
         add("detections", "dadiff.runtime.evaluation.cli", ["pseudo-label", "--video", str(root / "base.mp4"),
-            "--detections", str(det), "--out", str(root / f"pl{i}"), "--min-frames", "5", "--aspect", "0.2-5",
+            "--detections", str(det), "--output", str(root / f"pl{i}"), "--min-frames", "5", "--aspect", "0.2-5",
             "--min-height", "10"], strict=False)
     good = write_fake_detector(root / "detector.onnx", [[0.3, 0.25, 0.45, 0.4]], [0.9], [1.0]).read_bytes()
     for i in range(N_DETECTORS):
         bad = root / f"detector{i}.onnx"
         bad.write_bytes(mutate(good, rng))
         add("detector", "dadiff.runtime.evaluation.cli", ["detect", "--video", str(root / "base.mp4"),
-            "--detector", str(bad), "--out", str(root / f"det_out{i}.txt")], strict=False)
+            "--detector", str(bad), "--output", str(root / f"det_out{i}.txt")], strict=False)
 
 
 def _run_driver(cases: list[dict[str, Any]], root: Path, timeout: float, prefix: Sequence[str] = (),
@@ -552,15 +553,15 @@ def _new_user_cases(root: Path, held_port: int) -> list[dict[str, Any]]:
     add("fifo", run, ["--video", str(fifo), *track])
     add("fifo", run, ["--video", str(fifo), *track, "--mavlink", f"udpin:127.0.0.1:{free_port()}"])
     add("fifo", run, [*service, f"udpin:127.0.0.1:{free_port()}", "--signing-key", str(fifo)])
-    add("fifo", ev, ["run", "--dataset", str(dataset), "--results", str(root / "fres"), "--model", str(model),
+    add("fifo", ev, ["run", "--dataset", str(dataset), "--output", str(root / "fres"), "--model", str(model),
                      "--no-progress", "--no-plots"])
     add("fifo", "dadiff.export.train_cli", ["--config", str(fifo)])
     add("device", run, ["--config", "/dev/zero"])
     add("device", run, [*service, f"udpin:127.0.0.1:{free_port()}", "--signing-key", "/dev/zero"])
     add("device", "dadiff.export.train_cli", ["--config", "/dev/zero"])
-    add("nano", ev, ["run", "--dataset", str(good), "--results", str(root / "nres"), "--tracker", "nano",
+    add("nano", ev, ["run", "--dataset", str(good), "--output", str(root / "nres"), "--tracker", "nano",
                      "--nano-dir", str(nano), "--no-progress", "--no-plots"])
-    timing = [str(model), "--clip", "4", "--frames", "2", "--warmup", "0", "--json"]
+    timing = ["--model", str(model), "--clip", "4", "--max-frames", "2", "--warmup", "0", "--json"]
     add("nano", bench, [*timing, "--nano-dir", str(nano)])
     add("nano", bench, timing, env={"DADIFF_NANO_DIR": str(nano)})
     add("mavlink", run, [*service, "udpin:999.1.1.1:14550"])
@@ -616,7 +617,7 @@ def test_inputs_the_user_may_not_read_are_one_line(tmp_path) -> None:
         {"id": "folder-1", "kind": "unreadable", "module": run, "argv": [
             "--video", str(seq), "--model", str(model), "--mavlink", f"udpin:127.0.0.1:{free_port()}"]},
         {"id": "folder-2", "kind": "unreadable", "module": "dadiff.runtime.evaluation.cli", "argv": [
-            "run", "--dataset", str(tmp_path / "locked"), "--results", str(tmp_path / "res"), "--model", str(model),
+            "run", "--dataset", str(tmp_path / "locked"), "--output", str(tmp_path / "res"), "--model", str(model),
             "--no-progress", "--no-plots"]},
         {"id": "config-3", "kind": "unreadable", "module": run, "argv": ["--config", str(config)]},
     ]
@@ -725,9 +726,9 @@ def test_full_disk_leaves_outputs_whole_or_removed(tmp_path) -> None:
         ("dadiff-run", [*run, "--save-video", str(out / "track.mp4")], out / "track.mp4"),
         *([("dadiff-run", ["--demo", "--demo-out", str(out / "demo"), "--model", str(model)],
             out / "demo" / "demo-night-0.mp4"),  # the generator needs dadiff[eval] (scikit-image)
-           ("dadiff-bench", [str(model), "--clip", "20", "--frames", "5", "--warmup", "0", "--no-nano"],
+           ("dadiff-bench", ["--model", str(model), "--clip", "20", "--max-frames", "5", "--warmup", "0", "--no-nano"],
             out / "bench-tmp")] if importlib.util.find_spec("skimage") else []),  # its clip goes to TMPDIR
-        ("dadiff-eval", ["run", "--dataset", str(dataset), "--results", str(out / "results"), "--model", str(model),
+        ("dadiff-eval", ["run", "--dataset", str(dataset), "--output", str(out / "results"), "--model", str(model),
                          "--no-progress", "--no-plots"], out / "results"),
     ]
     failures, tally = [], {"cases": len(cases), "exit_nonzero": 0, "one_line_naming_the_file": 0,

@@ -82,7 +82,7 @@ def test_video_command_writes_day_and_night_sequences(tmp_path: Path, capsys):
     writer.release()
     assert len(read_video(video)) == 80
     out = tmp_path / "bench"
-    assert eval_main(["video", "--video", str(video), "--out", str(out), "--min-frames", "40"]) == 0
+    assert eval_main(["video", "--video", str(video), "--output", str(out), "--min-frames", "40"]) == 0
     assert "wrote 1 day + 1 night sequences" in capsys.readouterr().out
     dataset = load_dataset(out)
     day, night = (next(s for s in dataset.sequences if s.name == f"vid001_{k}") for k in ("day", "night"))
@@ -97,7 +97,7 @@ def test_video_command_writes_day_and_night_sequences(tmp_path: Path, capsys):
 def test_video_command_renders_the_night_with_the_camera_model(tmp_path: Path, capsys):
     video = _write_folder(_video([_walk(30, 100, 3, 50)], 50), tmp_path / "walk")
     out = tmp_path / "bench"
-    args = ["video", "--video", str(video), "--out", str(out), "--min-frames", "40", "--night", "camera"]
+    args = ["video", "--video", str(video), "--output", str(out), "--min-frames", "40", "--night", "camera"]
     assert eval_main(args) == 0
     assert "wrote 1 day + 1 night sequences" in capsys.readouterr().out
     info = json.loads((out / "benchmark.json").read_text())
@@ -116,7 +116,7 @@ def test_video_command_renders_the_night_with_the_camera_model(tmp_path: Path, c
 )
 def test_video_command_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys, make, message):
     video = make(tmp_path)
-    assert eval_main(["video", "--video", str(video), "--out", str(tmp_path / "out")]) == 2
+    assert eval_main(["video", "--video", str(video), "--output", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")
 
@@ -131,6 +131,6 @@ def test_video_command_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys, 
 )
 def test_video_command_bad_settings_are_one_line_and_exit_2(tmp_path: Path, capsys, args, message):
     video = _write_folder(_video([_walk(30, 100, 3, 80)], 80), tmp_path / "walk")
-    assert eval_main(["video", "--video", str(video), "--out", str(tmp_path / "out"), *args]) == 2
+    assert eval_main(["video", "--video", str(video), "--output", str(tmp_path / "out"), *args]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err and err.startswith("dadiff-eval: error:")

@@ -42,7 +42,7 @@ def test_dadiff_run_tracks_with_a_gat_model(gat_model_dir, sequence, tmp_path):
 
 def test_dadiff_eval_runs_a_gat_model(gat_model_dir, sequence, tmp_path):
     folder, _ = gat_model_dir
-    args = ["run", "--dataset", str(sequence), "--results", str(tmp_path / "results"), "--model", str(folder),
+    args = ["run", "--dataset", str(sequence), "--output", str(tmp_path / "results"), "--model", str(folder),
             "--threads", "1", "--no-plots", "--no-progress"]
     assert eval_main(args) == 0
     assert any((tmp_path / "results").rglob("Night1.txt"))

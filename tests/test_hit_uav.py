@@ -71,7 +71,7 @@ def _flight(prefix: str = "1_60_30_0") -> list[dict]:
 def test_neighbouring_stills_link_each_object_into_one_sequence_with_its_true_boxes(tmp_path):
     root = _fake_hit_uav(tmp_path / "hit", _flight())
     out = tmp_path / "out"
-    assert eval_main(["hit-uav", "--data", str(root), "--out", str(out)]) == 0
+    assert eval_main(["hit-uav", "--data", str(root), "--output", str(out)]) == 0
     dataset = load_dataset(out)
     assert sorted(s.name for s in dataset.sequences) == ["hit0001_car", "hit0002_person"]
     car = next(s for s in dataset.sequences if s.name.endswith("car"))
@@ -92,7 +92,7 @@ def test_max_move_keeps_only_links_within_a_trackers_reach(tmp_path):
     """The camera moves 38 then 58 px: 1.7 and 2.7 sides of the car (22 px), 3.5 and 5.3 of the person (11 px)."""
     root = _fake_hit_uav(tmp_path / "hit", _flight())
     out = tmp_path / "out"
-    assert eval_main(["hit-uav", "--data", str(root), "--out", str(out), "--max-move", "2"]) == 0
+    assert eval_main(["hit-uav", "--data", str(root), "--output", str(out), "--max-move", "2"]) == 0
     dataset = load_dataset(out)
     assert [(s.name, len(s)) for s in dataset.sequences] == [("hit0001_car", 2)]
     assert json.loads((out / "benchmark.json").read_text())["settings"]["max_move"] == 2
@@ -118,7 +118,7 @@ def test_stills_of_other_flights_or_far_apart_are_not_linked(tmp_path):
     assert [s.name for s in split] == ["1_60_30_0_00010.jpg", "1_60_30_0_00090.jpg", "1_70_30_0_00012.jpg"]
     chains, _ = build_chains(split, Registration(root / "images", ChainSettings()))
     assert chains == []
-    status = eval_main(["hit-uav", "--data", str(root), "--out", str(tmp_path / "out")])
+    status = eval_main(["hit-uav", "--data", str(root), "--output", str(tmp_path / "out")])
     assert status == 2 and not (tmp_path / "out").exists()
 
 
@@ -144,7 +144,7 @@ def test_a_camera_jump_without_common_ground_is_not_linked(tmp_path):
 def test_bad_annotations_get_one_line_and_exit_2(tmp_path, capsys, doc, expected):
     root = _fake_hit_uav(tmp_path / "hit", _flight())
     (root / "annotations" / "test.json").write_text(doc)
-    assert eval_main(["hit-uav", "--data", str(root), "--out", str(tmp_path / "out")]) == 2
+    assert eval_main(["hit-uav", "--data", str(root), "--output", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "test.json" in err[0] and expected in err[0]
 
@@ -164,6 +164,6 @@ def test_real_hit_uav_neighbours_link_into_sequences_of_one_class():
 def test_a_damaged_still_is_one_line_naming_it_and_exit_2(tmp_path, capsys):
     root = _fake_hit_uav(tmp_path / "hit", _flight())
     (root / "images" / "1_60_30_0_00012.jpg").write_bytes(b"not a jpeg")
-    assert eval_main(["hit-uav", "--data", str(root), "--out", str(tmp_path / "out")]) == 2
+    assert eval_main(["hit-uav", "--data", str(root), "--output", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"dadiff-eval: error: {root / 'images' / '1_60_30_0_00012.jpg'}: cannot read image"]

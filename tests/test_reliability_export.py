@@ -126,7 +126,7 @@ BAD_TRAIN = [
 def test_train_config_is_checked_before_any_work(tmp_path, capsys, text: str, message: str) -> None:
     config = tmp_path / "c.toml"
     config.write_text(text + "\n")
-    assert train.main(["--config", str(config), "--out", str(tmp_path / "run")]) == 2  # was: a traceback
+    assert train.main(["--config", str(config), "--output", str(tmp_path / "run")]) == 2  # was: a traceback
     line = _one_error(capsys, "dadiff-train")
     assert message in line and str(config) in line
     assert not (tmp_path / "run").exists()

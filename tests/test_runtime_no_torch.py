@@ -33,8 +33,9 @@ CHILD = PRELUDE + textwrap.dedent(
     assert cli.main(argv) == 0
     from dadiff.runtime import bench_cli
 
-    assert bench_cli.main([model, "--frames", "5", "--clip", "6", "--warmup", "1", "--json"]) == 0
-    assert bench_cli.main([model, "--frames", "5", "--compare-torch"]) == 2  # one line: needs dadiff[export]
+    assert bench_cli.main(["--model", model, "--max-frames", "5", "--clip", "6", "--warmup", "1", "--json"]) == 0
+    # one line: needs dadiff[export]
+    assert bench_cli.main(["--model", model, "--max-frames", "5", "--compare-torch"]) == 2
     loaded = [m for m in sys.modules if any(m == b or m.startswith(b + ".") for b in BLOCKED)]
     assert not loaded, loaded
     print("runtime ok without torch/onnx/export")

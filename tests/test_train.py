@@ -355,7 +355,7 @@ def test_a_bad_model_table_is_one_line_naming_the_file(tmp_path, capsys, table, 
 
     bad = tmp_path / "bad.toml"
     bad.write_text(f'[train]\nstage = "dadiff"\nfamily = "dadiff-mobile"\nsteps = 1\nmodel = {{ {table} }}\n')
-    assert main(["--config", str(bad), "--out", str(tmp_path / "run")]) == 2
+    assert main(["--config", str(bad), "--output", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(bad) in err and all(part in err for part in expected)
 
@@ -368,7 +368,7 @@ def test_seed_and_out_on_the_command_line_override_the_config(tmp_path, image_fo
     toml = tmp_path / "recipe.toml"
     toml.write_text(f"[train]\nout = '{tmp_path / 'first'}'\nstage = 'baseline'\nsteps = 1\nbatch_size = 2\n"
                     f"seed = 3\nday = [{{ kind = 'images', root = '{image_folder}' }}]\n")
-    assert main(["--config", str(toml), "--seed", "11", "--out", str(tmp_path / "second")]) == 0
+    assert main(["--config", str(toml), "--seed", "11", "--output", str(tmp_path / "second")]) == 0
     assert not (tmp_path / "first").exists()
     assert read_checkpoint_file(tmp_path / "second" / "final.pt")["train_config"]["seed"] == 11
     capsys.readouterr()  # the run's progress bar

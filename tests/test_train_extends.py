@@ -60,7 +60,7 @@ def test_a_config_without_extends_reads_as_before(tmp_path) -> None:
 def test_a_broken_chain_is_one_line_naming_the_file(tmp_path, capsys, files, blamed: str, message: str) -> None:
     for name, text in files.items():
         _write(tmp_path, name, text)
-    assert train.main(["--config", str(tmp_path / "a.toml"), "--out", str(tmp_path / "run")]) == 2
+    assert train.main(["--config", str(tmp_path / "a.toml"), "--output", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"dadiff-train: error: {tmp_path / blamed}: "), err
     assert message in err[0]
@@ -83,7 +83,7 @@ def test_show_config_prints_the_resolved_config_in_a_file_that_reads_back_the_sa
 
 def test_show_config_applies_the_command_line_overrides(tmp_path, capsys) -> None:
     path = _write(tmp_path, "base.toml", BASE)
-    assert train.main(["--config", str(path), "--show-config", "--out", "elsewhere", "--seed", "5"]) == 0
+    assert train.main(["--config", str(path), "--show-config", "--output", "elsewhere", "--seed", "5"]) == 0
     shown = capsys.readouterr().out
     assert 'out = "elsewhere"' in shown and "seed = 5" in shown and "# night: not set" in shown
     assert not (tmp_path / "elsewhere").exists()

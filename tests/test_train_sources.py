@@ -44,7 +44,7 @@ BAD_SOURCES = [
 def test_a_bad_day_source_is_refused_as_the_config_loads(tmp_path, capsys, source: str, message: str) -> None:
     config = tmp_path / "c.toml"
     config.write_text(f'steps = 1\nday = [{{ kind = "scenes" }}, {source}]\n')
-    assert train.main(["--config", str(config), "--out", str(tmp_path / "run"), "--show-config"]) == 2
+    assert train.main(["--config", str(config), "--output", str(tmp_path / "run"), "--show-config"]) == 2
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1, err
     assert err.startswith(f"dadiff-train: error: {config}: ") and message in err, err

@@ -1,26 +1,26 @@
 """dadiff-eval: one-pass evaluation (run, score) and the night-scene benchmark generator (generate).
 
-dadiff-eval run --model M --dataset D --results R [--attributes]
-dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --results R [--gamma 0.5]
+dadiff-eval run --model M --dataset D --output R [--attributes]
+dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --output R [--gamma 0.5]
 dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval table --set LABEL DATASET GLOB RESULTS [--set ...] --against TRACKER [--trackers NAME ...] [--skip-first]
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
 dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
-dadiff-eval generate --out DIR --sequences 16 --frames 120 --seed 2026 [--source skimage|library] [--night classic|real]
-                     [--cutouts DIR] [--gusts]
-dadiff-eval video --video FILE --out DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
+dadiff-eval generate --output DIR --sequences 16 --max-frames 120 --seed 2026 [--source skimage|library]
+                     [--night classic|real] [--cutouts DIR] [--gusts]
+dadiff-eval video --video FILE --output DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
                   [--night real|camera]
-dadiff-eval uncut --video FILE --truth DIR --out DIR [--night-seed N]
+dadiff-eval uncut --video FILE --truth DIR --output DIR [--night-seed N]
 dadiff-eval uncut-score --dataset D RESULT_DIR...
-dadiff-eval night --dataset D --out DIR [--seed 0] [--sequences GLOB]
-dadiff-eval detect --video FILE --detector MODEL.onnx --out det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
-dadiff-eval pseudo-label --video FILE --detections det.txt --out DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
+dadiff-eval night --dataset D --output DIR [--seed 0] [--sequences GLOB]
+dadiff-eval detect --video FILE --detector MODEL.onnx --output det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
+dadiff-eval pseudo-label --video FILE --detections det.txt --output DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
                          [--night real|camera]
-dadiff-eval hit-uav --out DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2] [--max-move 2]
-dadiff-eval cutouts --dataset D --out DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
+dadiff-eval hit-uav --output DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2] [--max-move 2]
+dadiff-eval cutouts --dataset D --output DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
 dadiff-eval data list [--cache DIR]
-dadiff-eval tune --model M --dataset D [--dataset D2] [--sequences GLOB] [--grid KEY=V1,V2 ...] [--out trials.csv]
+dadiff-eval tune --model M --dataset D [--dataset D2] [--sequences GLOB] [--grid KEY=V1,V2 ...] [--output trials.csv]
 """
 
 from __future__ import annotations
@@ -34,13 +34,13 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..argtypes import float_in, non_negative_int, positive_int
+from ..argtypes import add_renamed, float_in, non_negative_int, positive_int
 from ..cli import hp_arg
-from ..errors import InputError, ModelError, OneLineParser, os_error_line
+from ..errors import DadiffError, InputError, ModelError, OneLineParser, os_error_line
 from ..outputs import inside_folder, same_file
 from ..sources import quiet_opencv
 from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
-from .datasets import Dataset, DatasetError, load_dataset, plural
+from .datasets import Dataset, load_dataset, plural
 from .detection_tracks import LinkSettings, write_detection_benchmark
 from .detector import Detector, detect_video, write_det_txt
 from .evaluate import (
@@ -121,7 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--attributes", action="store_true", help="also print (and plot) scores per attribute")
 
     run = sub.add_parser("run", parents=[common], help="run a tracker over a dataset, then score and plot")
-    run.add_argument("--results", required=True, type=Path, help="results root: <results>/<dataset>/<tracker>/")
+    add_renamed(run, "-o", "--output", former=["--results"], required=True, type=Path,
+                help="results root: <output>/<dataset>/<tracker>/")
     run.add_argument("--model", help="dadiff model folder, .onnx file or shipped name (default: shipped default)")
     run.add_argument("--tracker", choices=("dadiff", "csrt", "kcf", "nano"), default="dadiff",
                      help="tracker to run (nano: OpenCV's TrackerNano with NanoTrack v2 weights)")
@@ -186,9 +187,10 @@ def build_parser() -> argparse.ArgumentParser:
     read.add_argument("--threads", type=positive_int, help="onnxruntime threads (default: one per physical core)")
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
-    gen.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    add_renamed(gen, "-o", "--output", former=["--out"], required=True, type=Path, help="new (or empty) output folder")
     gen.add_argument("--sequences", type=positive_int, default=16, help="sequences (default 16)")
-    gen.add_argument("--frames", type=positive_int, default=120, help="frames per sequence (default 120)")
+    add_renamed(gen, "--max-frames", former=["--frames"], type=positive_int, default=120,
+                help="frames per sequence (default 120)")
     gen.add_argument("--seed", type=non_negative_int, default=0, help="first sequence's seed (default 0)")
     gen.add_argument("--split", choices=tuple(PHOTO_SPLITS), default="test", help="photo split (default: test)")
     gen.add_argument("--size", type=_size, default=(640, 360), metavar="WxH",
@@ -228,7 +230,8 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
                            "by background subtraction (OTB layout)")
     video.add_argument("--video", required=True, type=Path, help="video file (or folder of frames) from a camera "
                        "that does not move")
-    video.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    add_renamed(video, "-o", "--output", former=["--out"], required=True, type=Path,
+                help="new (or empty) output folder")
     video.add_argument("--seed", type=non_negative_int, default=0,
                        help="seed of the night cameras and lights (default 0)")
     video.add_argument("--min-frames", type=positive_int, default=60, help="shortest sequence (default 60)")
@@ -250,7 +253,8 @@ def _add_night_model_argument(parser: argparse.ArgumentParser) -> None:
 def _add_night_parser(sub: argparse._SubParsersAction, selection: argparse.ArgumentParser) -> None:
     night = sub.add_parser("night", parents=[selection], help="the day sequences of any dataset and their nights "
                            "by the independent camera model (OTB layout)")
-    night.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    add_renamed(night, "-o", "--output", former=["--out"], required=True, type=Path,
+                help="new (or empty) output folder")
     night.add_argument("--seed", type=non_negative_int, default=0, help="seed of the night cameras (default 0)")
 
 
@@ -259,7 +263,8 @@ def _add_uncut_parsers(sub: argparse._SubParsersAction, selection: argparse.Argu
                            "that marks frames unknown or absent (docs/vtest-uncut for vtest.avi)")
     uncut.add_argument("--video", required=True, type=Path, help="the video the truth was made for")
     uncut.add_argument("--truth", required=True, type=Path, help="truth folder: clips.json and one folder per clip")
-    uncut.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    add_renamed(uncut, "-o", "--output", former=["--out"], required=True, type=Path,
+                help="new (or empty) output folder")
     uncut.add_argument("--night-seed", type=non_negative_int, metavar="N",
                        help="render the video at night first (video's night camera and lights, drawn by N)")
     score = sub.add_parser("uncut-score", parents=[selection],
@@ -272,7 +277,7 @@ def _add_detect_parser(sub: argparse._SubParsersAction) -> None:
                             "Detection API interface), as a MOTChallenge det.txt for pseudo-label")
     detect.add_argument("--video", required=True, type=Path, help="video file (or folder of frames)")
     detect.add_argument("--detector", required=True, type=Path, help="the detector, .onnx")
-    detect.add_argument("--out", required=True, type=Path, help="det.txt to write")
+    add_renamed(detect, "-o", "--output", former=["--out"], required=True, type=Path, help="det.txt to write")
     detect.add_argument("--classes", type=_class_ids, default={1}, metavar="ID[,ID...]",
                         help="class ids to keep (COCO: 1 person, 3 car; default 1)")
     detect.add_argument("--tiles", type=int, choices=range(0, 9), default=3, metavar="0-8",
@@ -296,7 +301,8 @@ def _add_cutouts_parser(sub: argparse._SubParsersAction) -> None:
                      help="labelled sequences (what pseudo-label or video wrote)")
     cut.add_argument("--sequences", nargs="+", default=["*_day"], metavar="GLOB",
                      help="sequences to cut from (default: *_day)")
-    cut.add_argument("--out", required=True, type=Path, help="new (or empty, or an earlier cut-out) folder")
+    add_renamed(cut, "-o", "--output", former=["--out"], required=True, type=Path,
+                help="new (or empty, or an earlier cut-out) folder")
     cut.add_argument("--licence", required=True, help="the footage's licence, recorded in the index")
     cut.add_argument("--every", type=positive_int, default=8, help="every N-th frame of a sequence (default 8)")
     cut.add_argument("--min-height", type=float, default=48.0, help="smallest box height in px (default 48)")
@@ -309,7 +315,8 @@ def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
     label.add_argument("--detections", required=True, type=Path,
                        help="the detector's boxes as a MOTChallenge det.txt: frame,id,x,y,w,h,score per line, "
                        "frames from 1")
-    label.add_argument("--out", required=True, type=Path, help="new (or empty) output folder")
+    add_renamed(label, "-o", "--output", former=["--out"], required=True, type=Path,
+                help="new (or empty) output folder")
     label.add_argument("--seed", type=non_negative_int, default=0,
                        help="seed of the night cameras and lights (default 0)")
     label.add_argument("--min-frames", type=positive_int, default=30, help="shortest sequence (default 30)")
@@ -324,7 +331,8 @@ def _add_pseudo_label_parser(sub: argparse._SubParsersAction) -> None:
 def _add_hit_uav_parser(sub: argparse._SubParsersAction) -> None:
     hit = sub.add_parser("hit-uav", help="tracking sequences from HIT-UAV's real night thermal stills: the same "
                          "object's boxes in neighbouring stills of a flight, linked (OTB layout)")
-    hit.add_argument("--out", required=True, type=Path, help="new (or empty) output folder, outside the repository")
+    add_renamed(hit, "-o", "--output", former=["--out"], required=True, type=Path,
+                help="new (or empty) output folder, outside the repository")
     hit.add_argument("--data", type=Path, help="the HIT-UAV night folder (images/, annotations/; default: "
                      "../shared/data/hit-uav-night beside a source checkout)")
     hit.add_argument("--split", choices=HIT_SPLITS, default="test",
@@ -359,7 +367,7 @@ def _add_tune_parser(sub: argparse._SubParsersAction) -> None:
                       help="values to try for one parameter (repeat; default: lr, penalty_k, window_influence)")
     tune.add_argument("--rounds", type=positive_int, default=2, help="passes over the parameters (default 2)")
     tune.add_argument("--threads", type=positive_int, help="onnxruntime threads (default: one per physical core)")
-    tune.add_argument("--out", type=Path, help="write every trial to this CSV file")
+    add_renamed(tune, "-o", "--output", former=["--out"], type=Path, help="write every trial to this CSV file")
 
 
 def _add_data_parser(sub: argparse._SubParsersAction) -> None:
@@ -376,7 +384,8 @@ def _add_data_parser(sub: argparse._SubParsersAction) -> None:
     actions.add_parser("list", parents=[cache], help="images per package, role and split, and licences")
     pack = actions.add_parser("pack", parents=[cache],
                               help="a small copy of the library (e.g. to train on a lent GPU machine)")
-    pack.add_argument("--out", type=Path, required=True, metavar="DIR", help="new or empty folder for the pack")
+    add_renamed(pack, "-o", "--output", former=["--out"], type=Path, required=True, metavar="DIR",
+                help="new or empty folder for the pack")
     pack.add_argument("--max-mib", type=float_in(0, MAX_PACK_MIB, open_low=True), default=40.0,
                       help=f"size budget in MiB, above 0 and at most {MAX_PACK_MIB:g} (default: %(default)s)")
     pack.add_argument("--split", choices=("train", "all"), default="train",
@@ -466,7 +475,7 @@ def report(
 
 def check_output(option: str, path: Path | None, inputs: Sequence[Path]) -> None:
     """InputError when an output would land on an input file or inside an input folder, before any work:
-    `tune --out ds/a/groundtruth_rect.txt` used to replace the ground truth with a trials table."""
+    `tune --output ds/a/groundtruth_rect.txt` used to replace the ground truth with a trials table."""
     if path is None:
         return
     for source in inputs:
@@ -479,11 +488,11 @@ def check_output(option: str, path: Path | None, inputs: Sequence[Path]) -> None
 
 
 def _check_results(results: Path, dataset: str, name: str) -> None:
-    """`run --results` and the folders under it must be folders where they exist: checked before tracking,
+    """`run --output` and the folders under it must be folders where they exist: checked before tracking,
     which used to run to the end and then fail with 'Not a directory'."""
     for path in (results, results / dataset, tracker_folder(results, dataset, name)):
         if path.exists() and not path.is_dir():
-            raise InputError(f"{path}: is a file, not a folder; --results needs a folder here (nothing tracked)")
+            raise InputError(f"{path}: is a file, not a folder; --output needs a folder here (nothing tracked)")
 
 
 def _make_tracker(args: argparse.Namespace) -> tuple[object, str]:
@@ -552,17 +561,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     except TrackerUnavailable as exc:  # this machine lacks a module or weights: exit 2 like other bad input
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    _check_results(args.results, dataset.name, name)
-    results = tracker_folder(args.results, dataset.name, name)
-    check_output("--results", results, [args.dataset])
-    plots = None if args.no_plots else (args.plots or args.results / "plots" / dataset.name)
+    _check_results(args.output, dataset.name, name)
+    results = tracker_folder(args.output, dataset.name, name)
+    check_output("--output", results, [args.dataset])
+    plots = None if args.no_plots else (args.plots or args.output / "plots" / dataset.name)
     check_output("--plots", plots, [args.dataset])
     warning = claim_folder(results, run_record(args, tracker))  # before tracking: other settings are refused
     if warning:
         print(f"{PROG}: warning: {warning}", file=sys.stderr)
     # a bar only on a terminal, as dadiff-run: redirected, it filled logs with one line per refresh
     progress = not args.no_progress and sys.stderr.isatty()
-    done = run_tracker(tracker, name, dataset, args.results, progress=progress)
+    done = run_tracker(tracker, name, dataset, args.output, progress=progress)
     fps = f", {done.fps:.1f} FPS" if done.fps else ""
     print(
         f"{name}: tracked {plural(len(done.ran), 'sequence')} ({done.frames} frames{fps}), "
@@ -650,9 +659,9 @@ def cmd_anatomy(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     root = write_benchmark(
-        args.out,
+        args.output,
         args.sequences,
-        args.frames,
+        args.max_frames,
         args.seed,
         args.split,
         size=args.size,
@@ -665,7 +674,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     took = time.perf_counter() - start
     night = json.loads((root / "benchmark.json").read_text())["night"]
     print(
-        f"wrote {args.sequences} day + {args.sequences} night sequences of {args.frames} frames to {root} "
+        f"wrote {args.sequences} day + {args.sequences} night sequences of {args.max_frames} frames to {root} "
         f"({args.source} pictures, {night} night) in {took:.1f} s"
     )
     return 0
@@ -690,11 +699,11 @@ def cmd_cutouts(args: argparse.Namespace) -> int:
         raise SceneError(f"--min-height {args.min_height} must be above 0 (px)")
     start = time.perf_counter()
     dataset = load_dataset(args.dataset).select(args.sequences)
-    index = write_cutouts(dataset, args.out, args.licence, CutSettings(args.every, args.min_height))
+    index = write_cutouts(dataset, args.output, args.licence, CutSettings(args.every, args.min_height))
     splits = Counter(item["split"] for item in index["cutouts"])
     rejected = ", ".join(f"{n} {why}" for why, n in index["rejected"].items()) or "none"
     print(f"wrote {len(index['cutouts'])} cut-outs ({splits['train']} train, {splits['test']} test) from "
-          f"{len(dataset.sequences)} sequences to {args.out} in {time.perf_counter() - start:.1f} s; "
+          f"{len(dataset.sequences)} sequences to {args.output} in {time.perf_counter() - start:.1f} s; "
           f"rejected: {rejected}")
     return 0
 
@@ -713,11 +722,11 @@ def cmd_video(args: argparse.Namespace) -> int:
     settings = LabelSettings(threshold=args.threshold, min_area=args.min_area, min_frames=args.min_frames,
                              max_frames=args.max_frames, min_aspect=args.min_aspect)
     start = time.perf_counter()
-    tracks = write_fixed_camera_benchmark(args.video, args.out, args.seed, settings, night=args.night)
+    tracks = write_fixed_camera_benchmark(args.video, args.output, args.seed, settings, night=args.night)
     frames = sum(len(t.boxes) for t in tracks)
     print(f"wrote {len(tracks)} day + {len(tracks)} night sequences ({frames} frames each way, "
           f"{min(len(t.boxes) for t in tracks)}-{max(len(t.boxes) for t in tracks)} per sequence) from "
-          f"{args.video} to {args.out} in {time.perf_counter() - start:.1f} s")
+          f"{args.video} to {args.output} in {time.perf_counter() - start:.1f} s")
     return 0
 
 
@@ -725,9 +734,9 @@ def cmd_uncut(args: argparse.Namespace) -> int:
     from .uncut import write_uncut_clips
 
     start = time.perf_counter()
-    frames = write_uncut_clips(args.video, args.truth, args.out, args.night_seed)
+    frames = write_uncut_clips(args.video, args.truth, args.output, args.night_seed)
     look = "day" if args.night_seed is None else f"night (seed {args.night_seed})"
-    print(f"wrote the clips of {args.truth} over {frames} frames of {args.video} ({look}) to {args.out} "
+    print(f"wrote the clips of {args.truth} over {frames} frames of {args.video} ({look}) to {args.output} "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
 
@@ -742,11 +751,11 @@ def cmd_uncut_score(args: argparse.Namespace) -> int:
 
 
 def cmd_night(args: argparse.Namespace) -> int:
-    check_output("--out", args.out, [args.dataset])
+    check_output("--output", args.output, [args.dataset])
     start = time.perf_counter()
-    count, stats = write_camera_nights(args.dataset, args.out, args.seed, args.sequences)
+    count, stats = write_camera_nights(args.dataset, args.output, args.seed, args.sequences)
     print(f"wrote {count} day + {count} night sequences (camera night, seed {args.seed}) from {args.dataset} to "
-          f"{args.out} in {time.perf_counter() - start:.1f} s; night: {format_statistics(stats)}")
+          f"{args.output} in {time.perf_counter() - start:.1f} s; night: {format_statistics(stats)}")
     return 0
 
 
@@ -779,10 +788,11 @@ def _pack(cache: Path, args: argparse.Namespace) -> int:
     if library is None:
         raise LibraryError(f"no library in {cache}: run `{PROG} data fetch` first")
     splits = ("train", "test") if args.split == "all" else ("train",)
-    counts = pack_library(library, args.out, int(args.max_mib * 2**20), splits)
+    counts = pack_library(library, args.output, int(args.max_mib * 2**20), splits)
     size = counts.pop("bytes")
     parts = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
-    print(f"{PROG}: packed {parts} into {args.out} ({size / 2**20:.1f} MiB); use it with DADIFF_DATA_DIR={args.out}")
+    print(f"{PROG}: packed {parts} into {args.output} ({size / 2**20:.1f} MiB); "
+          f"use it with DADIFF_DATA_DIR={args.output}")
     return 0
 
 
@@ -793,13 +803,13 @@ def _check_min_score(args: argparse.Namespace) -> None:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     _check_min_score(args)
-    check_output("--out", args.out, [args.video, args.detector])
+    check_output("--output", args.output, [args.video, args.detector])
     detector = Detector(args.detector, threads=args.threads)
     frames = read_video(args.video)
     start = time.perf_counter()
-    count = write_det_txt(args.out, detect_video(frames, detector, args.classes, args.min_score, args.tiles))
+    count = write_det_txt(args.output, detect_video(frames, detector, args.classes, args.min_score, args.tiles))
     print(f"wrote {count} detections of class {','.join(map(str, sorted(args.classes)))} in {len(frames)} frames "
-          f"of {args.video} to {args.out} in {time.perf_counter() - start:.1f} s")
+          f"of {args.video} to {args.output} in {time.perf_counter() - start:.1f} s")
     return 0
 
 
@@ -810,10 +820,10 @@ def cmd_pseudo_label(args: argparse.Namespace) -> int:
                             start_score=max(args.min_score, LinkSettings.start_score), min_height=args.min_height,
                             min_aspect=args.aspect[0], max_aspect=args.aspect[1])
     start = time.perf_counter()
-    tracks = write_detection_benchmark(args.video, args.detections, args.out, args.seed, settings, args.night)
+    tracks = write_detection_benchmark(args.video, args.detections, args.output, args.seed, settings, args.night)
     lengths = [len(t.boxes) for t in tracks]
     print(f"wrote {len(tracks)} day + {len(tracks)} night sequences ({sum(lengths)} frames each way, "
-          f"{min(lengths)}-{max(lengths)} per sequence) from {args.video} and {args.detections} to {args.out} "
+          f"{min(lengths)}-{max(lengths)} per sequence) from {args.video} and {args.detections} to {args.output} "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
 
@@ -825,13 +835,13 @@ def cmd_hit_uav(args: argparse.Namespace) -> int:
                          "night folder with --data DIR")
     if args.min_frames < 2:
         raise InputError(f"--min-frames {args.min_frames}: a sequence needs at least 2 stills")
-    check_output("--out", args.out, [data])
+    check_output("--output", args.output, [data])
     settings = ChainSettings(max_gap=args.max_gap, min_frames=args.min_frames, max_move=args.max_move)
     start = time.perf_counter()
-    chains = write_hit_uav_benchmark(data, args.out, args.split, settings)
+    chains = write_hit_uav_benchmark(data, args.output, args.split, settings)
     classes = Counter(HIT_CLASSES[c.cls] for c in chains)
     print(f"wrote {plural(len(chains), 'sequence')} ({', '.join(f'{n} {k}' for k, n in classes.items())}; "
-          f"{sum(len(c.stills) for c in chains)} frames) from HIT-UAV's {args.split} split in {data} to {args.out} "
+          f"{sum(len(c.stills) for c in chains)} frames) from HIT-UAV's {args.split} split in {data} to {args.output} "
           f"in {time.perf_counter() - start:.1f} s (CC BY 4.0: cite HIT-UAV, see benchmark.json)")
     return 0
 
@@ -866,9 +876,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
     )
 
     grid = parse_grid(args.grid) or DEFAULT_GRID
-    if args.out:  # written after minutes of tuning: checked first
-        check_output("--out", args.out, args.dataset)
-        check_trials_out(args.out)
+    if args.output:  # written after minutes of tuning: checked first
+        check_output("--output", args.output, args.dataset)
+        check_trials_out(args.output)
     first_tracker = Tracker.load(args.model, preset=args.preset, threads=args.threads)  # before minutes of decoding
     sequences = [s for path in args.dataset for s in load_sequences(load_dataset(path).select(args.sequences))]
     backend = first_tracker.backend  # one onnxruntime session for every trial
@@ -883,8 +893,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
     print(f"tuning {', '.join(grid)} on {len(sequences)} sequences ({sum(len(s.frames) for s in sequences)} frames)")
     trials = coordinate_search(evaluate, start, grid, args.rounds, show)
-    if args.out:
-        write_trials(args.out, trials)
+    if args.output:
+        write_trials(args.output, trials)
     best, first = best_trial(trials), trials[0]
     values = ", ".join(f"{k}={v:g}" for k, v in best.values.items())
     print(f"best of {len(trials)} trials: {values}: success {best.scores.success:.3f} "
@@ -920,11 +930,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with quiet_opencv():
             return commands[args.command](args)
-    except (DatasetError, EvalError, SceneError, ModelError, InputError, LibraryError) as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
+    except OSError as exc:  # first: an UnreadableFile is a DadiffError too, and reads best as `<file>: <why>`
         print(f"{PROG}: error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
+    except DadiffError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; finished sequences are kept, run again to resume", file=sys.stderr)

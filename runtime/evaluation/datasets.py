@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import DadiffError
 from ..sources import image_dir, image_files
 from ..user_files import read_user_text
 from .scene_error import SceneError
@@ -55,7 +56,7 @@ SPLIT_CLIP = re.compile(r"(.+)_(\d+)")  # UAV123's bird1_1, bird1_2: parts of da
 _SPLIT = re.compile(r"[,\t ]+")
 
 
-class DatasetError(Exception):
+class DatasetError(DadiffError):
     """A dataset folder or file is missing, unreadable or not in a known layout (one-line message)."""
 
 
@@ -107,7 +108,7 @@ class Dataset:
 def check_new_folder(out: Path) -> None:
     """Refuse to write a benchmark over anything: `out` must not exist or be an empty folder."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise SceneError(f"{out}: exists and is not an empty folder; choose a new --out")
+        raise SceneError(f"{out}: exists and is not an empty folder; choose a new --output")
 
 
 def plural(count: int, word: str, words: str | None = None) -> str:

@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..crop import protocol_box
-from ..errors import InputError
+from ..errors import DadiffError, InputError
 from ..files import write_atomic
 from ..sources import read_image
 from ..user_files import read_user_text
@@ -40,7 +40,7 @@ STATES = ".states"  # suffix of the per-frame score,state file beside each resul
 KNOWN_STATES = ("init", "tracking", "uncertain", "lost")  # what the run loop writes after each score
 
 
-class EvalError(Exception):
+class EvalError(DadiffError):
     """Results missing or malformed, a tracker unavailable, a frame unreadable (one-line message)."""
 
 
@@ -375,7 +375,7 @@ def claim_folder(folder: Path, record: dict) -> str | None:
         differences = run_record_differences(old, record)
         if differences:
             raise EvalError(f"{folder} holds results of other settings ({'; '.join(differences)}): give --name NEW "
-                            f"(or another --results) for these settings; nothing tracked")
+                            f"(or another --output) for these settings; nothing tracked")
         return None
     if has_results:
         return (f"{folder} has results but no {RUN_RECORD} (written by an older dadiff-eval): their settings "

@@ -37,6 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..errors import DadiffError
 from ..files import write_atomic
 from .rcc import RccArchive, RccEntry, RccError, zstd_available
 
@@ -78,7 +79,7 @@ GREY_SATURATION = 3.0  # terrain: mean HSV saturation below this is a grey detai
 DUPLICATE_BITS = 4  # difference hashes this close (of 64 bits) are the same picture
 
 
-class LibraryError(ValueError):
+class LibraryError(DadiffError, ValueError):
     """A library problem a user can fix: missing tool, bad .deb, bad folder, no index (one-line message)."""
 
 

@@ -22,13 +22,15 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from ..errors import DadiffError
+
 MAGIC = b"qres"
 FLAG_ZLIB = 0x01
 FLAG_DIRECTORY = 0x02
 FLAG_ZSTD = 0x04
 
 
-class RccError(ValueError):
+class RccError(DadiffError, ValueError):
     """The bytes are not a readable rcc archive (one-line message)."""
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from ..errors import DadiffError
 
-class SceneError(ValueError):
+
+class SceneError(DadiffError, ValueError):
     """Bad generator input or a missing photo source (one-line message)."""

@@ -200,7 +200,7 @@ def _resume_point(root: Path, info: dict) -> dict[str, tuple[str, ...]]:
         return {}
     marker = root / UNFINISHED / "settings.json"
     if not marker.is_file():
-        raise SceneError(f"{root}: exists and is not an empty folder; choose a new --out")
+        raise SceneError(f"{root}: exists and is not an empty folder; choose a new --output")
     try:
         earlier = json.loads(marker.read_text())
     except (OSError, ValueError):
@@ -208,7 +208,7 @@ def _resume_point(root: Path, info: dict) -> dict[str, tuple[str, ...]]:
     if earlier != info:
         differ = sorted(k for k in {*info, *(earlier or {})} if (earlier or {}).get(k) != info.get(k))
         raise SceneError(f"{root}: holds an interrupted generation with other settings ({', '.join(differ)}); "
-                         "run it with the same options to finish it, or choose a new --out")
+                         "run it with the same options to finish it, or choose a new --output")
     done = {}
     for path in (root / UNFINISHED).glob("seq*.json"):
         try:
@@ -256,7 +256,7 @@ def write_benchmark(
     done = _resume_point(root, settings)
     if source == "library":  # fail early, before anything is written (the workers open their own)
         library_images(library or open_scene_library(), split)
-    if source == "skimage":  # likewise: without scikit-image an empty --out folder was left behind
+    if source == "skimage":  # likewise: without scikit-image an empty --output folder was left behind
         load_photos(split)
     try:
         (root / UNFINISHED).mkdir(parents=True, exist_ok=True)

@@ -127,7 +127,7 @@ def best_trial(trials: Sequence[Trial]) -> Trial:
 
 
 def check_trials_out(path: Path) -> None:
-    """InputError unless `path` is new or a trials CSV that `write_trials` wrote: `--out` replaced any file,
+    """InputError unless `path` is new or a trials CSV that `write_trials` wrote: `--output` replaced any file,
     a dataset's ground truth or a video included."""
     if not path.exists():
         return
@@ -137,7 +137,7 @@ def check_trials_out(path: Path) -> None:
     except OSError:
         first = b""
     if not first.endswith(b"," + ",".join(SCORE_COLUMNS).encode()):
-        raise InputError(f"{path}: --out exists and is not a trials CSV of dadiff-eval tune; choose a new file "
+        raise InputError(f"{path}: --output exists and is not a trials CSV of dadiff-eval tune; choose a new file "
                          "(nothing written)")
 
 
