@@ -73,11 +73,23 @@ def _needs_torch(item: pytest.Item) -> bool:
     return False
 
 
+def slow_tests() -> set[str]:
+    """`file::function` of each test listed in tests/slow-tests.txt."""
+    lines = (TESTS / "slow-tests.txt").read_text().splitlines()
+    return {line.strip() for line in lines if line.strip() and not line.startswith("#")}
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark `torch` every test that needs it, so that `-m "not torch"` is the companion computer's install."""
+    """Mark `torch` every test that needs it, so that `-m "not torch"` is the companion computer's install, and
+    `slow` those and the tests listed in slow-tests.txt, so that `-m "not slow"` is the quick check. A torch test
+    builds, trains or exports a network (seconds each here, and which one pays the warm-up depends on the order)."""
+    slow = slow_tests()
     for item in items:
         if _needs_torch(item):
             item.add_marker(pytest.mark.torch)
+            item.add_marker(pytest.mark.slow)
+        elif f"{item.path.name}::{getattr(item, 'originalname', item.name)}" in slow:
+            item.add_marker(pytest.mark.slow)
 
 
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # run as a background job: the Ctrl-C tests need Python's

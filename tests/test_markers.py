@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import TESTS, _function_needs_torch, _module_needs_torch, random_crops
+from conftest import TESTS, _function_needs_torch, _module_needs_torch, random_crops, slow_tests
 
 
 def _torch_inside() -> None:
@@ -77,3 +77,16 @@ def test_test_modules_import_torch_only_through_importorskip() -> None:
         if statement is not None and "importorskip" not in ast.unparse(statement):
             bare.append(f"{path.name}:{statement.lineno}")
     assert not bare, f"import torch through pytest.importorskip at the top of: {bare}"
+
+
+def test_every_slow_entry_names_a_test() -> None:
+    """A test renamed or removed leaves no stale line in slow-tests.txt (it would mark nothing)."""
+    missing = []
+    for entry in sorted(slow_tests()):
+        file, function = entry.split("::")
+        path = TESTS / file
+        tree = ast.parse(path.read_text()) if path.is_file() else ast.Module(body=[], type_ignores=[])
+        names = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+        if function not in names:
+            missing.append(entry)
+    assert not missing, f"tests/slow-tests.txt names tests that are not there: {missing}"
