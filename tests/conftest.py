@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import ast
+import inspect
 import json
 import os
 import signal
+import textwrap
+from functools import cache
 from pathlib import Path
 
 import pytest
@@ -12,7 +16,80 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-ban"
 GAT_FIXTURES = REPO.parent / "shared" / "fixtures" / "official-dadiff-gat"
+TESTS = Path(__file__).resolve().parent
 
+
+def _imports_torch(tree: ast.AST) -> bool:
+    """`import torch`, `from torch... import` or `pytest.importorskip("torch")` anywhere in `tree`."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "torch" for a in node.names):
+            return True
+        if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "torch":
+            return True
+        if (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", "")) == "importorskip"
+                and node.args and isinstance(node.args[0], ast.Constant) and node.args[0].value == "torch"):
+            return True
+    return False
+
+
+def _defined_in_tests(obj: object) -> bool:
+    path = getattr(getattr(obj, "__code__", None), "co_filename", None)
+    return path is not None and Path(path).resolve().is_relative_to(TESTS)
+
+
+@cache
+def _function_needs_torch(function) -> bool:
+    """The function, or a helper of the test folder it names (followed through), imports torch."""
+    try:
+        definition = ast.parse(textwrap.dedent(inspect.getsource(function))).body[0]
+    except (OSError, TypeError, SyntaxError):
+        return False
+    tree = ast.Module(body=getattr(definition, "body", [definition]), type_ignores=[])  # not its decorators
+    if _imports_torch(tree):
+        return True
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+    helpers = (function.__globals__.get(name) for name in names)
+    return any(inspect.isfunction(h) and h is not function and _defined_in_tests(h) and _function_needs_torch(h)
+               for h in helpers)
+
+
+@cache
+def _module_needs_torch(path: str) -> bool:
+    """The module imports torch at its top level (outside functions and classes)."""
+    body = ast.parse(Path(path).read_text()).body
+    top = [s for s in body if not isinstance(s, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef)]
+    return _imports_torch(ast.Module(body=top, type_ignores=[]))
+
+
+def _needs_torch(item: pytest.Item) -> bool:
+    """What the test, its module, its fixtures or the test folder's helpers they call import decides it."""
+    if _module_needs_torch(str(item.path)) or _function_needs_torch(getattr(item, "function", None)):
+        return True
+    fixturedefs = getattr(item, "_fixtureinfo", None)
+    for name in item.fixturenames:
+        for fixturedef in (fixturedefs.name2fixturedefs.get(name, ()) if fixturedefs else ()):
+            if _defined_in_tests(fixturedef.func) and _function_needs_torch(fixturedef.func):
+                return True
+    return False
+
+
+def slow_tests() -> set[str]:
+    """`file::function` of each test listed in tests/slow-tests.txt."""
+    lines = (TESTS / "slow-tests.txt").read_text().splitlines()
+    return {line.strip() for line in lines if line.strip() and not line.startswith("#")}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark `torch` every test that needs it, so that `-m "not torch"` is the companion computer's install, and
+    `slow` those and the tests listed in slow-tests.txt, so that `-m "not slow"` is the quick check. A torch test
+    builds, trains or exports a network (seconds each here, and which one pays the warm-up depends on the order)."""
+    slow = slow_tests()
+    for item in items:
+        if _needs_torch(item):
+            item.add_marker(pytest.mark.torch)
+            item.add_marker(pytest.mark.slow)
+        elif f"{item.path.name}::{getattr(item, 'originalname', item.name)}" in slow:
+            item.add_marker(pytest.mark.slow)
 
 
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # run as a background job: the Ctrl-C tests need Python's

@@ -91,6 +91,7 @@ def test_without_valgrind_is_one_line(model_dir: Path, monkeypatch, capsys) -> N
     assert len(err.splitlines()) == 1 and "needs valgrind" in err
 
 
+@pytest.mark.valgrind
 @pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is not installed")
 def test_a_real_count_under_valgrind(model_dir: Path, tmp_path: Path) -> None:
     """The whole path once, on the tiny test model: valgrind runs the program (it would stop with SIGILL at an
