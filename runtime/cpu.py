@@ -41,8 +41,8 @@ def int8_saturates(machine: str | None = None, cpuinfo: str | None = None) -> bo
 
 INT8_WARNING = (
     "this CPU has no AVX-512 VNNI / AVX-VNNI: onnxruntime's int8 kernels saturate here, so int8 results drift "
-    "from fp32 more than measured in README (cell agreement 82 % vs 94 %); prefer the fp32 model, or export "
-    "int8 on this CPU (dadiff-export --quantize int8 uses reduce_range, 7-bit weights, for it)"
+    "from fp32 more than measured in docs/performance.md (cell agreement 82 % vs 94 %); prefer the fp32 model, "
+    "or export int8 on this CPU (dadiff-export --quantize int8 uses reduce_range, 7-bit weights, for it)"
 )
 
 

@@ -1,13 +1,13 @@
 """The picture's sudden motion between two frames, to move the search region with it.
 
 A gust or a quick yaw moves the whole picture further in one frame than the network's search region
-reaches (docs/results.md, "Gusts"); the picture says by how much, even at night, where lamps and lit ground give
+reaches (docs/lab-notebook.md, "Gusts"); the picture says by how much, even at night, where lamps and lit ground give
 phase correlation a sharp peak. Only a sudden change can be the drone's accident: a drone following its
 target sees the ground flow steadily under a target that stays put in the frame. So each shift is compared
 with the picture's steady motion (the median of the last `TREND_READS` shifts, which a gust of a few frames
 does not move), and only a jolt, a shift that departs from it by more than `JOLT_FRACTION` of the frame's
 width, moves the tracker's search region (a second look where the target was, the surer one kept, lost
-more under gusts than it saved: docs/results.md, "Jolts").
+more under gusts than it saved: docs/lab-notebook.md, "Jolts").
 The frames are compared small and grey, so a read costs well under a millisecond; a read whose peak is weak
 (a dark, flat or changing picture) is ignored.
 """

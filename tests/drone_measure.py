@@ -1,4 +1,4 @@
-"""Rates and latencies of the MAVLink service over loopback, for the README's "Measured" line:
+"""Rates and latencies of the MAVLink service over loopback, for the "Measured" lines of docs/drone.md:
 `python3 tests/drone_measure.py [SECONDS]` (default 5 s windows). Not a test (pytest does not collect it):
 the tests assert the same things with margins, this prints the numbers. It uses the test rig (fake tracker,
 synthetic 30 FPS camera, simulated autopilot, PX4 and gimbal manager)."""

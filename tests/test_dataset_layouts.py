@@ -166,7 +166,7 @@ def test_otb_sequence_with_frames_beside_its_truth_file_and_a_root_without_any(t
 
 
 def test_att_files_beside_otb_sequences(tmp_path):
-    """README: attributes come from att/<seq>.txt; it was read only in the data_seq/ + anno/ layout."""
+    """docs/datasets.md: attributes come from att/<seq>.txt; it was read only in the data_seq/ + anno/ layout."""
     root = tmp_path / "UAV123"
     _otb(root, "bike1")
     _otb(root, "car1")

@@ -172,7 +172,7 @@ def test_interrupted_write_benchmark_resumes_with_the_same_settings(tmp_path, mo
 # ---------------------------------------------------------------------------------- seeded benchmark
 
 # Recorded from the generator before the "real" night style and the library source existed: the seeded
-# benchmark in README (`dadiff-eval generate --seed 2026`) must stay reproducible bit for bit on a machine.
+# benchmark s2026 (`dadiff-eval generate --seed 2026`) must stay reproducible bit for bit on a machine.
 # OpenCV picks its SIMD kernels at run time, and its AVX-512 and AVX2 kernels round some resize / warp steps
 # differently, so the frames' bytes differ between CPUs with and without AVX-512 (cv2.setUseOptimized(False)
 # changes them too; numpy's dispatch does not); the boxes do not. The frames are recorded for both. The night

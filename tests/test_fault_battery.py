@@ -1,4 +1,4 @@
-"""Fault and fuzz battery (issue 13), bounded in time: its figures go into README's reliability section.
+"""Fault and fuzz battery (issue 13), bounded in time: its figures go into docs/reliability.md.
 
 1. MAVLink: random and mutated datagrams and commands against the running service; it must keep
    heartbeating and answer a good command afterwards.

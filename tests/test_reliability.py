@@ -581,8 +581,8 @@ def test_hp_overflow_would_reach_the_crop() -> None:
 
 
 def test_readmes_csrt_environment_does_not_break_ruff(tmp_path) -> None:
-    """Issue 55: README's CSRT recipe makes `csrt-env/` inside the checkout; `ruff check .` then reported 355
-    errors in the packages installed there and the test command stopped."""
+    """Issue 55: the CSRT recipe (docs/evaluation.md) makes `csrt-env/` inside the checkout; `ruff check .` then
+    reported 355 errors in the packages installed there and the test command stopped."""
     pytest.importorskip("ruff")
     root = Path(__file__).resolve().parent.parent
     (tmp_path / "pyproject.toml").write_text((root / "pyproject.toml").read_text())

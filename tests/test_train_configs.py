@@ -81,7 +81,7 @@ def _named_patterns(text: str) -> list[str]:
 
 
 def test_docs_name_every_config() -> None:
-    """README's Training section or the results it points to (docs/results.md) says what each config is for."""
+    """README or a page of docs/ (training.md, the lab notebook) says what each config is for."""
     text = "\n".join(p.read_text() for p in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))])
     missing = [p.name for p in CONFIGS if not any(fnmatch(p.name, pat) for pat in _named_patterns(text))]
     assert not missing, f"neither README nor docs/ names {missing}"

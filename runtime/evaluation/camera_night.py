@@ -13,7 +13,7 @@ response curve, denoises (motion-adaptive temporal filtering and a bilateral or 
 sharpens (unsharp mask) and compresses (JPEG at night quality). Every parameter is drawn once per sequence
 (`NightCamera.draw`) so the lights stay fixed in the image and the look holds for the whole sequence, and is
 recorded (`NightCamera.record`). The ranges were set so that rendered frames of real video land in the
-statistics of real night drone video (`night_statistics`; README, Evaluation, "A second night model").
+statistics of real night drone video (`night_statistics`; docs/datasets.md, "A second night model").
 
 H.264 would be the compression of a real camera, but this OpenCV's FFmpeg has no H.264 encoder and ignores the
 bitrate of the one it has (MPEG-4 part 2), so frames are compressed as JPEG at qualities 20-60.

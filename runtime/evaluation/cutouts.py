@@ -1,7 +1,7 @@
 """Target cut-outs from labelled video: `dadiff-eval cutouts`.
 
 The library's target cut-outs are animals, fruit, tools and vehicles with two people among them, and on real
-people at night the tracker's box is wrong in a way the generated scenes never show (docs/results.md, "Real
+people at night the tracker's box is wrong in a way the generated scenes never show (docs/lab-notebook.md, "Real
 footage"). A labelled sequence (what `dadiff-eval pseudo-label` or `video` writes) gives a box per frame;
 GrabCut (OpenCV), started from that box with a margin of the frame around it, separates the person from the
 background (outside the box is background by construction). A cut is kept only when it looks like one

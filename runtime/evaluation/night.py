@@ -5,7 +5,8 @@ mostly near black, sodium-orange or white-LED pools of light (`NightLights`), sa
 the camera's denoising smear and JPEG blocking, motion blur when the camera moves fast. "classic" (`NightStyle`)
 is the original camera model (linear light, optical blur, ambient light pools and lamp glows (`Light`), Poisson
 shot noise and Gaussian read noise from inverse-CDF tables, low gain, gamma and a colour cast), kept unchanged:
-the seeded benchmark in README (`dadiff-eval generate --seed 2026`) is made with it and stays bit for bit.
+the seeded benchmark s2026 (`dadiff-eval generate --seed 2026`, docs/evaluation.md) is made with it and stays
+bit for bit.
 """
 
 from __future__ import annotations
