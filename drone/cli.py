@@ -20,7 +20,6 @@ import signal
 import socket
 import sys
 import threading
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -372,7 +371,7 @@ def run_mavlink(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, video: str) -> int:
-    from dadiff.runtime.cli import warn_int8
+    from dadiff.runtime.cpu import warn_int8
     from dadiff.runtime.errors import InputError, ModelError
     from dadiff.runtime.outputs import OutputError, Sink, TrackLog, VideoSink
     from dadiff.runtime.sources import open_source
@@ -393,7 +392,7 @@ def _run(args: argparse.Namespace, video: str) -> int:
             preset=getattr(args, "preset", None),
             overrides=getattr(args, "hp", None) or None,
         )
-        warn_int8(tracker)
+        warn_int8(PROG, tracker)
         if output is not None:
             sinks.append(TrackLog(output))
         if save_video is not None:
@@ -430,26 +429,3 @@ def _run_with_signals(service: Any) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 130 if {signal.SIGINT, signal.SIGHUP} & set(caught) and rc == 0 else rc
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Stand-alone entry (python -m dadiff.drone.cli): the dadiff-run parser with these options."""
-    from dadiff.runtime import cli as runtime_cli
-
-    from .config import parse_args
-
-    parser = runtime_cli.build_parser()
-    add_mavlink_arguments(parser)
-    try:
-        args = parse_args(parser, argv)
-    except runtime_cli.UsageError as exc:
-        return _error(exc)
-    except SystemExit as exc:  # --help
-        return exc.code if isinstance(exc.code, int) else 0
-    if not args.mavlink:
-        return _error("--mavlink CONN is required here (plain tracking is dadiff-run without it)")
-    return run_mavlink(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from .argtypes import non_negative_int, positive_int
 from .config import TUNABLE_KEYS
-from .cpu import int8_warning
+from .cpu import warn_int8
 from .crop import protocol_box
 from .errors import InputError, ModelError, os_error_line
 from .launch import signals_held, stop_signals_interrupt
@@ -173,7 +173,7 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
     tracker = Tracker.load(
         args.model, provider=args.provider, threads=args.threads, preset=args.preset, overrides=args.hp
     )
-    warn_int8(tracker)
+    warn_int8(PROG, tracker)
     source = open_source(args.video)
     sinks: list[Sink] = []
     failed: OutputError | None = None
@@ -203,13 +203,6 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
         finally:
             source.close()
             _warn_missing(source)
-
-
-def warn_int8(tracker: Tracker) -> None:
-    """One warning line when an int8 model runs where onnxruntime's int8 kernels saturate (runtime/cpu.py)."""
-    warning = int8_warning(getattr(tracker.backend, "meta", None))
-    if warning:
-        print(f"{PROG}: warning: {warning}", file=sys.stderr)
 
 
 def _warn_missing(source: VideoSource | FolderSource) -> None:

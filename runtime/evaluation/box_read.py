@@ -23,8 +23,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..tracker import Tracker, check_box
-from .datasets import Dataset
-from .evaluate import EvalError, check_first_box, read_frame
+from .datasets import Dataset, read_frame
+from .evaluate import EvalError, check_first_box
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..sources import image_dir, image_files
+from ..sources import image_dir, image_files, read_image
 from ..user_files import read_user_text
 from .scene_error import SceneError
 
@@ -434,3 +434,12 @@ def load_dataset(path: str | Path) -> Dataset:
         raise DatasetError(f"{path}: no sequences found ({layout} layout)")
     return Dataset(name=name, path=path, layout="official" if layout == "nested" else layout,
                    sequences=tuple(sequences))
+
+
+def read_frame(path: Path) -> np.ndarray:
+    """A frame to track; a file that is not there says so ("cannot read image" sent people looking for a
+    damaged file)."""
+    image = read_image(path)  # libjpeg's own warnings on a damaged frame stay off stderr
+    if image is None:
+        raise DatasetError(f"{path}: {'cannot read image' if Path(path).is_file() else 'not found'}")
+    return image

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..user_files import read_user_text
 from .fixed_camera import Track, check_new_folder, read_video, video_info, write_tracks
-from .metrics import iou_with_each
+from .geometry import iou_with_each
 from .scene_error import SceneError
 
 CUT_SIZE = (80, 45)  # frames are compared at this size to find scene cuts

@@ -30,9 +30,8 @@ from tqdm import tqdm
 from ..crop import protocol_box
 from ..errors import InputError
 from ..files import write_atomic
-from ..sources import read_image
 from ..user_files import read_user_text
-from .datasets import Dataset, DatasetError, load_dataset, plural, read_boxes
+from .datasets import Dataset, DatasetError, load_dataset, plural, read_boxes, read_frame
 from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
@@ -401,15 +400,6 @@ class RunReport:
     @property
     def fps(self) -> float | None:
         return self.frames / self.seconds if self.seconds > 0 else None
-
-
-def read_frame(path: Path) -> np.ndarray:
-    """A frame to track; a file that is not there says so ("cannot read image" sent people looking for a
-    damaged file)."""
-    image = read_image(path)  # libjpeg's own warnings on a damaged frame stay off stderr
-    if image is None:
-        raise EvalError(f"{path}: {'cannot read image' if Path(path).is_file() else 'not found'}")
-    return image
 
 
 def check_first_box(name: str, box: np.ndarray) -> None:

@@ -24,7 +24,7 @@ from ..files import write_atomic
 from ..frames import decode_video
 from ..ort_cache import file_sha256
 from .datasets import check_new_folder, list_frames
-from .metrics import iou_with_each
+from .geometry import iou_with_each
 from .night import NightLights, RealNight
 from .scene_error import SceneError
 from .scenes import write_boxes, write_frame

@@ -29,7 +29,7 @@ from ..files import write_atomic
 from ..sources import read_image
 from .datasets import read_text
 from .fixed_camera import check_new_folder
-from .metrics import iou_with_each
+from .geometry import iou_with_each
 from .scene_error import SceneError
 from .scenes import write_boxes
 
