@@ -1,7 +1,7 @@
 """`dadiff-run --mavlink CONN`: the tracker as a MAVLink camera component (and optional follow controller)
 on a companion computer.
 
-dadiff.runtime.cli calls `add_mavlink_arguments(parser)` while building its parser and
+dadiff.runtime.commands.run calls `add_mavlink_arguments(parser)` while building its parser and
 `run_mavlink(args)` when --mavlink is given; `dadiff.drone.config.parse_args` adds `--config FILE.toml`.
 This module imports nothing heavy at import time: the runtime's parser can load it cheaply.
 

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.cli import main
-from dadiff.runtime.evaluation.datasets import DatasetError, load_dataset, read_frame
+from dadiff.runtime.commands.eval import main
+from dadiff.runtime.datamaking.datasets import DatasetError, load_dataset, read_frame
 from dadiff.runtime.sources import image_files
 
 

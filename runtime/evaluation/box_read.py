@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..datamaking.datasets import Dataset, read_frame
 from ..errors import InputError
 from ..tracker import Tracker, check_box
-from .datasets import Dataset, read_frame
 from .evaluate import EvalError, check_first_box
 
 

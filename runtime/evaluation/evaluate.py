@@ -28,10 +28,10 @@ import numpy as np
 from tqdm import tqdm
 
 from ..crop import protocol_box
+from ..datamaking.datasets import Dataset, DatasetError, load_dataset, plural, read_boxes, read_frame
 from ..errors import InputError
 from ..files import write_atomic
 from ..user_files import read_user_text
-from .datasets import Dataset, DatasetError, load_dataset, plural, read_boxes, read_frame
 from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
@@ -546,7 +546,7 @@ def result_folders(paths: Iterable[Path], dataset: Dataset) -> list[tuple[str, P
 def generated_night_set(root: Path, sequences: int, frames: int, seed: int, workers: int | None = None) -> Dataset:
     """The night half of a generated benchmark (test photos) written to `root`, as `dadiff-eval generate`
     writes it; frames are read from disk while tracking, so scoring many sequences keeps memory flat."""
-    from .scenes import write_benchmark  # the generator pulls in scikit-image's photos: only when asked
+    from ..datamaking.scenes import write_benchmark  # the generator pulls in scikit-image's photos: only when asked
 
     write_benchmark(root, sequences, frames, seed, "test", workers=workers or min(sequences, os.cpu_count() or 1))
     return load_dataset(root).select(["*_night"])

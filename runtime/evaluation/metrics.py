@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import as_boxes, iou, paired_boxes
+from ..datamaking.geometry import as_boxes, iou, paired_boxes
 
 SUCCESS_THRESHOLDS = np.arange(0, 1.05, 0.05)  # 21 IoU thresholds, strict >
 PRECISION_THRESHOLDS = np.arange(0, 51, 1)  # centre error in pixels, <=

@@ -280,7 +280,7 @@ def write_hit_uav_benchmark(root: str | Path, out: str | Path, split: str = "tes
                         "images": [stills[p].name for p in chain.stills],
                         "annotation_ids": [stills[p].ids[r] for p, r in zip(chain.stills, chain.boxes, strict=True)]})
     write_atomic(out / "attributes.json", json.dumps(attributes, indent=1) + "\n")
-    info = {"generator": "dadiff.runtime.evaluation.hit_uav", "source": "HIT-UAV night images", "data": str(root),
+    info = {"generator": "dadiff.runtime.datamaking.hit_uav", "source": "HIT-UAV night images", "data": str(root),
             "split": split, "licence": LICENCE, "attribution": CITATION, "settings": asdict(settings),
             "stills": len(stills), "sequences": records, "pairs": pairs}
     write_atomic(out / "benchmark.json", json.dumps(info, indent=1) + "\n")

@@ -35,15 +35,32 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..argtypes import float_in, non_negative_int, positive_int
-from ..cli import hp_arg
+from ..datamaking.datasets import Dataset, DatasetError, load_dataset, plural
+from ..datamaking.detection_tracks import LinkSettings, write_detection_benchmark
+from ..datamaking.detector import Detector, detect_video, write_det_txt
+from ..datamaking.fixed_camera import NIGHT_MODELS, LabelSettings, read_video, write_fixed_camera_benchmark
+from ..datamaking.hit_uav import CLASSES as HIT_CLASSES
+from ..datamaking.hit_uav import SPLITS as HIT_SPLITS
+from ..datamaking.hit_uav import ChainSettings, write_hit_uav_benchmark
+from ..datamaking.hit_uav import default_data_dir as default_hit_uav_dir
+from ..datamaking.library import (
+    DEFAULT_PACKAGES,
+    ROLES,
+    SPLITS,
+    Library,
+    LibraryError,
+    fetch,
+    library_root,
+    open_library,
+)
+from ..datamaking.night import NIGHT_STYLES
+from ..datamaking.night_sets import format_statistics, write_camera_nights
+from ..datamaking.photos import PHOTO_SPLITS
+from ..datamaking.scene import MAX_SIDE, frame_size
+from ..datamaking.scenes import SOURCES, SceneError, write_benchmark
 from ..errors import InputError, ModelError, OneLineParser, os_error_line
-from ..outputs import inside_folder, same_file
-from ..sources import quiet_opencv
-from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
-from .datasets import Dataset, DatasetError, load_dataset, plural
-from .detection_tracks import LinkSettings, write_detection_benchmark
-from .detector import Detector, detect_video, write_det_txt
-from .evaluate import (
+from ..evaluation.anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
+from ..evaluation.evaluate import (
     NANO_ENV,
     EvalError,
     GammaTracker,
@@ -60,20 +77,12 @@ from .evaluate import (
     score_folder,
     tracker_folder,
 )
-from .fixed_camera import NIGHT_MODELS, LabelSettings, read_video, write_fixed_camera_benchmark
-from .hit_uav import CLASSES as HIT_CLASSES
-from .hit_uav import SPLITS as HIT_SPLITS
-from .hit_uav import ChainSettings, write_hit_uav_benchmark
-from .hit_uav import default_data_dir as default_hit_uav_dir
-from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
-from .metrics import Scores, paired_difference
-from .night import NIGHT_STYLES
-from .night_sets import format_statistics, write_camera_nights
-from .photos import PHOTO_SPLITS
-from .plots import write_plots
-from .scene import MAX_SIDE, frame_size
-from .scenes import SOURCES, SceneError, write_benchmark
-from .table import TableSet, markdown_table, score_set
+from ..evaluation.metrics import Scores, paired_difference
+from ..evaluation.plots import write_plots
+from ..evaluation.table import TableSet, markdown_table, score_set
+from ..outputs import inside_folder, same_file
+from ..sources import quiet_opencv
+from .run import hp_arg
 
 PROG = "dadiff-eval"
 NOTE = (
@@ -677,14 +686,14 @@ def _cutout_library(args: argparse.Namespace):
         return None
     if args.source != "library":
         raise SceneError("--cutouts needs --source library (the cut-outs are pasted over its backgrounds)")
-    from .cutouts import CutoutTargets
-    from .library_scenes import open_scene_library
+    from ..datamaking.cutouts import CutoutTargets
+    from ..datamaking.library_scenes import open_scene_library
 
     return CutoutTargets(open_scene_library(), args.cutouts)
 
 
 def cmd_cutouts(args: argparse.Namespace) -> int:
-    from .cutouts import CutSettings, write_cutouts
+    from ..datamaking.cutouts import CutSettings, write_cutouts
 
     if not args.min_height > 0:
         raise SceneError(f"--min-height {args.min_height} must be above 0 (px)")
@@ -722,7 +731,7 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 
 def cmd_uncut(args: argparse.Namespace) -> int:
-    from .uncut import write_uncut_clips
+    from ..evaluation.uncut import write_uncut_clips
 
     start = time.perf_counter()
     frames = write_uncut_clips(args.video, args.truth, args.out, args.night_seed)
@@ -733,7 +742,7 @@ def cmd_uncut(args: argparse.Namespace) -> int:
 
 
 def cmd_uncut_score(args: argparse.Namespace) -> int:
-    from .uncut import format_uncut, uncut_scores
+    from ..evaluation.uncut import format_uncut, uncut_scores
 
     dataset = load_dataset(args.dataset).select(args.sequences)
     rows = {name: uncut_scores(dataset, folder) for name, folder in result_folders(args.dirs, dataset)}
@@ -773,7 +782,7 @@ def _short_licence(licence: str, most: int = 5) -> str:
 
 
 def _pack(cache: Path, args: argparse.Namespace) -> int:
-    from .library_pack import pack_library
+    from ..datamaking.library_pack import pack_library
 
     library = open_library(cache)
     if library is None:
@@ -837,8 +846,8 @@ def cmd_hit_uav(args: argparse.Namespace) -> int:
 
 
 def cmd_box_read(args: argparse.Namespace) -> int:
+    from ..evaluation.box_read import box_read, format_box_read
     from ..tracker import Tracker
-    from .box_read import box_read, format_box_read
 
     tracker = Tracker.load(args.model, threads=args.threads)
     stride = tracker.geometry.stride
@@ -853,8 +862,7 @@ def cmd_box_read(args: argparse.Namespace) -> int:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    from ..tracker import Tracker
-    from .tune import (
+    from ..evaluation.tune import (
         DEFAULT_GRID,
         best_trial,
         check_trials_out,
@@ -864,6 +872,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         track_sequences,
         write_trials,
     )
+    from ..tracker import Tracker
 
     grid = parse_grid(args.grid) or DEFAULT_GRID
     if args.out:  # written after minutes of tuning: checked first

@@ -84,15 +84,15 @@ def launch(prog: str, module: str) -> NoReturn:
 
 
 def dadiff_run() -> NoReturn:
-    launch("dadiff-run", "dadiff.runtime.cli")
+    launch("dadiff-run", "dadiff.runtime.commands.run")
 
 
 def dadiff_eval() -> NoReturn:
-    launch("dadiff-eval", "dadiff.runtime.evaluation.cli")
+    launch("dadiff-eval", "dadiff.runtime.commands.eval")
 
 
 def dadiff_bench() -> NoReturn:
-    launch("dadiff-bench", "dadiff.runtime.bench_cli")
+    launch("dadiff-bench", "dadiff.runtime.commands.bench")
 
 
 def dadiff_export() -> NoReturn:

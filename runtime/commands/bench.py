@@ -30,22 +30,12 @@ from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
-from .argtypes import int_in, non_negative_int, positive_int
-from .bench import (
-    BenchLane,
-    BenchRun,
-    NightVideo,
-    latency_ms,
-    run_lanes,
-    search_crops,
-    time_search,
-    write_night_video,
-)
-from .cli import hp_arg
-from .cpu import cpu_flags
-from .errors import InputError, ModelError, OneLineParser, os_error_line
-from .evaluation.datasets import Dataset, DatasetError
-from .evaluation.evaluate import (
+from ..argtypes import int_in, non_negative_int, positive_int
+from ..cpu import cpu_flags
+from ..datamaking.datasets import Dataset, DatasetError
+from ..datamaking.scene_error import SceneError
+from ..errors import InputError, ModelError, OneLineParser, os_error_line
+from ..evaluation.evaluate import (
     NANO_ENV,
     EvalError,
     OpenCVTracker,
@@ -58,12 +48,22 @@ from .evaluation.evaluate import (
     score_tracker,
     tracker_folder,
 )
-from .evaluation.scene_error import SceneError
-from .instructions import CLIP, UPDATES, InstructionCountError, count_updates, valgrind_path, write_clip
-from .onnx_backend import physical_cores, thread_count
-from .outputs import OutputError
-from .sources import quiet_opencv
-from .tracker import Tracker
+from ..onnx_backend import physical_cores, thread_count
+from ..outputs import OutputError
+from ..sources import quiet_opencv
+from ..tracker import Tracker
+from .bench_instructions import CLIP, UPDATES, InstructionCountError, count_updates, valgrind_path, write_clip
+from .bench_lanes import (
+    BenchLane,
+    BenchRun,
+    NightVideo,
+    latency_ms,
+    run_lanes,
+    search_crops,
+    time_search,
+    write_night_video,
+)
+from .run import hp_arg
 
 ROWS = (
     ("decode", "video decode"), ("motion", "picture motion (jolts)"), ("crop", "search crop"),

@@ -15,16 +15,16 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from .argtypes import non_negative_int, positive_int
-from .config import TUNABLE_KEYS
-from .cpu import warn_int8
-from .crop import protocol_box
-from .errors import InputError, ModelError, os_error_line
+from ..argtypes import non_negative_int, positive_int
+from ..config import TUNABLE_KEYS
+from ..cpu import warn_int8
+from ..crop import protocol_box
+from ..errors import InputError, ModelError, os_error_line
+from ..outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
+from ..runstats import RunStats
+from ..sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
+from ..tracker import Tracker
 from .launch import signals_held, stop_signals_interrupt
-from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
-from .runstats import RunStats
-from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
-from .tracker import Tracker
 
 PROG = "dadiff-run"
 STATUS_EVERY_S = 5.0
@@ -142,7 +142,7 @@ def _demo(args: argparse.Namespace) -> int:
                          "do not apply to it (use --model, --seed, --demo-out)")
     if args.demo_out.exists() and not args.demo_out.is_dir():
         raise OutputError(f"{args.demo_out}: --demo-out exists and is not a folder")
-    from .evaluation.demo import run_demo  # the generator needs scikit-image's photos: loaded only here
+    from .demo import run_demo  # the generator needs scikit-image's photos: loaded only here
 
     run_demo(args.model, args.demo_out, seed=args.seed)
     return 0
