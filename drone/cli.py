@@ -81,7 +81,7 @@ def _bad_ipv4(host: str) -> bool:
 
 def mavlink_conn(text: str) -> str:
     """argparse type: a connection string pymavlink opens as a link (it opens anything else as a log file,
-    so `foo:bar` used to run without any link)."""
+    so a spec without a known scheme, `foo:bar`, is refused here rather than run without a link)."""
     spec = text.strip()
     scheme, sep, rest = spec.partition(":")
     host = rest.rpartition(":")[0]

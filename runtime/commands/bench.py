@@ -229,8 +229,8 @@ def _flags_text(flags: dict[str, bool | None]) -> str:
 
 def _use_nano(args: argparse.Namespace) -> tuple[bool, str | None]:
     """Whether to time TrackerNano, and the note to print when the timing starts if not. --nano: required (a
-    missing weight is an error naming --nano); default: when the weights are here, else a note (TrackerNano
-    used to vanish from the report without a word); --no-nano: never, no note."""
+    missing weight is an error naming --nano); default: when the weights are here, else a note (a tracker left
+    out of the report is always said so); --no-nano: never, no note."""
     if args.nano is False:
         return False, None
     if args.nano is None:
@@ -429,7 +429,7 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.checkpoint and not (args.compare_torch or args.sweep_steps):  # it was silently ignored
+    if args.checkpoint and not (args.compare_torch or args.sweep_steps):  # an option that changes nothing: an error
         print("dadiff-bench: error: --checkpoint applies to --compare-torch and --sweep-steps only", file=sys.stderr)
         return 2
     try:

@@ -93,7 +93,7 @@ NOTE = (
 
 MAX_SHIFT = 255.0  # box-read --shifts, crop px: the largest shipped search crop's side; 1e308 overflowed crop.py
 MAX_GAMMA = 10.0  # run --gamma: above it every frame is black but its brightest pixels
-MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; nan and inf used to raise ValueError / OverflowError
+MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; finite and bounded, so nan and inf are one-line errors
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -102,7 +102,7 @@ def _size(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x360, got '{text}'") from None
     try:
-        return frame_size((w, h), 1)  # bounded at parse time: 100000x100000 used to be an OpenCV allocation traceback
+        return frame_size((w, h), 1)  # bounded at parse time, before OpenCV is asked to allocate the frame
     except SceneError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -420,8 +420,8 @@ def _pick(item: TrackerScores, attribute: str | None):
 
 
 def attribute_names(dataset: Dataset, wanted: bool, label: str) -> list[str]:
-    """The attributes to report under --attributes; a note on stderr when there are none (the option used to
-    print nothing more, silently, which read as if the dataset's attributes had been lost)."""
+    """The attributes to report under --attributes; a note on stderr when there are none (an option that
+    changes nothing says why)."""
     if not wanted:
         return []
     names = dataset.attributes()
@@ -437,7 +437,7 @@ def _scores_json(s: Scores) -> dict[str, float]:
 
 def scores_table(dataset: Dataset, scores: Sequence[TrackerScores], names: list[str]) -> dict:
     """`score --json`'s document: overall scores per tracker, and per attribute when `names` are given
-    (--attributes used to be left out of the JSON silently)."""
+    (--attributes reaches the JSON as it reaches the table)."""
     table = {}
     for item in scores:
         entry: dict = _scores_json(item.overall)
@@ -475,7 +475,7 @@ def report(
 
 def check_output(option: str, path: Path | None, inputs: Sequence[Path]) -> None:
     """InputError when an output would land on an input file or inside an input folder, before any work:
-    `tune --out ds/a/groundtruth_rect.txt` used to replace the ground truth with a trials table."""
+    no command writes over what it reads (`tune --out ds/a/groundtruth_rect.txt` is refused)."""
     if path is None:
         return
     for source in inputs:
@@ -489,7 +489,7 @@ def check_output(option: str, path: Path | None, inputs: Sequence[Path]) -> None
 
 def _check_results(results: Path, dataset: str, name: str) -> None:
     """`run --results` and the folders under it must be folders where they exist: checked before tracking,
-    which used to run to the end and then fail with 'Not a directory'."""
+    so that a bad output path fails at once, not after the run."""
     for path in (results, results / dataset, tracker_folder(results, dataset, name)):
         if path.exists() and not path.is_dir():
             raise InputError(f"{path}: is a file, not a folder; --results needs a folder here (nothing tracked)")
@@ -594,7 +594,7 @@ def format_differences(scores: Sequence[TrackerScores], against: str) -> str:
     base = next((s for s in scores if s.name == against), None)
     if base is None:
         raise InputError(f"--against {against}: no such tracker among {', '.join(s.name for s in scores)}")
-    if len(scores) == 1:  # the heading alone used to be printed, with nothing under it
+    if len(scores) == 1:  # a table needs a row to compare: say so rather than print a bare heading
         return f"--against {against}: nothing to compare ({against} is the only tracker given)"
     names = list(base.sequences)
     lines = [f"success minus {against} (per-sequence bootstrap, 95% interval):"]

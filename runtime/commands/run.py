@@ -137,7 +137,7 @@ DEMO_IGNORES = ("video", "init", "output", "save_video", "preset", "hp", "thread
 
 def _demo(args: argparse.Namespace) -> int:
     given = [f"--{k.replace('_', '-')}" for k in DEMO_IGNORES if getattr(args, k, None) not in (None, {}, [])]
-    if given:  # they were accepted and silently not applied
+    if given:  # an option the demo would not apply is an error, never ignored
         raise InputError(f"--demo runs the default setup on a generated sequence; {', '.join(given)} "
                          "do not apply to it (use --model, --seed, --demo-out)")
     if args.demo_out.exists() and not args.demo_out.is_dir():

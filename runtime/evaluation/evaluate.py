@@ -258,7 +258,7 @@ def _number(value: float) -> str:
 def read_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
     """The state of every frame of every sequence in `folder`, or None where any `.states` file is missing
     (runs from before they were written, other tools' results). Every file that is there is checked line by
-    line first (`bogus`, `x` or `,` used to pass and count as a flagged frame)."""
+    line first (`bogus`, `x` or `,` is an error, never a flagged frame)."""
     present = {}
     for seq in dataset.sequences:
         path = Path(folder) / f"{seq.name}{STATES}"
@@ -354,8 +354,8 @@ def run_record_differences(old: dict, new: dict) -> list[str]:
 def claim_folder(folder: Path, record: dict) -> str | None:
     """Check `record` (what this run would track with) against the one in `folder`, before tracking.
 
-    Other settings: EvalError naming each setting that differs (a resumed run used to skip every finished
-    sequence and report the old setting's scores as the new one's). No folder yet, or one without results
+    Other settings: EvalError naming each setting that differs (a run never resumes into results of another
+    setting, whose scores it would report as its own). No folder yet, or one without results
     (a run that failed before its first sequence left only its record): the record is written. Results without
     a record (older versions): a warning to print, nothing written, since they may come from other settings.
     """
