@@ -1,7 +1,7 @@
 """`dadiff-run --mavlink CONN`: the tracker as a MAVLink camera component (and optional follow controller)
 on a companion computer.
 
-dadiff.runtime.cli calls `add_mavlink_arguments(parser)` while building its parser and
+dadiff.runtime.commands.run calls `add_mavlink_arguments(parser)` while building its parser and
 `run_mavlink(args)` when --mavlink is given; `dadiff.drone.config.parse_args` adds `--config FILE.toml`.
 This module imports nothing heavy at import time: the runtime's parser can load it cheaply.
 
@@ -20,7 +20,6 @@ import signal
 import socket
 import sys
 import threading
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +81,7 @@ def _bad_ipv4(host: str) -> bool:
 
 def mavlink_conn(text: str) -> str:
     """argparse type: a connection string pymavlink opens as a link (it opens anything else as a log file,
-    so `foo:bar` used to run without any link)."""
+    so a spec without a known scheme, `foo:bar`, is refused here rather than run without a link)."""
     spec = text.strip()
     scheme, sep, rest = spec.partition(":")
     host = rest.rpartition(":")[0]
@@ -372,7 +371,7 @@ def run_mavlink(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, video: str) -> int:
-    from dadiff.runtime.cli import warn_int8
+    from dadiff.runtime.cpu import warn_int8
     from dadiff.runtime.errors import DadiffError
     from dadiff.runtime.outputs import Sink, TrackLog, VideoSink
     from dadiff.runtime.sources import open_source
@@ -393,7 +392,7 @@ def _run(args: argparse.Namespace, video: str) -> int:
             preset=getattr(args, "preset", None),
             overrides=getattr(args, "hp", None) or None,
         )
-        warn_int8(tracker)
+        warn_int8(PROG, tracker)
         if output is not None:
             sinks.append(TrackLog(output))
         if save_video is not None:
@@ -430,26 +429,3 @@ def _run_with_signals(service: Any) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 130 if {signal.SIGINT, signal.SIGHUP} & set(caught) and rc == 0 else rc
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Stand-alone entry (python -m dadiff.drone.cli): the dadiff-run parser with these options."""
-    from dadiff.runtime import cli as runtime_cli
-
-    from .config import parse_args
-
-    parser = runtime_cli.build_parser()
-    add_mavlink_arguments(parser)
-    try:
-        args = parse_args(parser, argv)
-    except runtime_cli.UsageError as exc:
-        return _error(exc)
-    except SystemExit as exc:  # --help
-        return exc.code if isinstance(exc.code, int) else 0
-    if not args.mavlink:
-        return _error("--mavlink CONN is required here (plain tracking is dadiff-run without it)")
-    return run_mavlink(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -33,11 +33,11 @@ from onnxruntime.quantization.shape_inference import quant_pre_process
 
 from dadiff.runtime.backend import RecordingBackend
 from dadiff.runtime.cpu import INT8_WARNING, int8_saturates
+from dadiff.runtime.datamaking.datasets import Dataset
+from dadiff.runtime.datamaking.scenes import make_sequence
 from dadiff.runtime.decode import foreground_score, hann_window
 from dadiff.runtime.errors import DadiffError, InputError, ModelError
-from dadiff.runtime.evaluation.datasets import Dataset
 from dadiff.runtime.evaluation.evaluate import generated_night_set, score_tracker
-from dadiff.runtime.evaluation.scenes import make_sequence
 from dadiff.runtime.onnx_backend import OnnxBackend, session_options
 from dadiff.runtime.sources import open_source
 from dadiff.runtime.tracker import Tracker

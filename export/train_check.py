@@ -13,8 +13,8 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.datamaking.night import NIGHT_STYLES
 from dadiff.runtime.errors import DadiffError
-from dadiff.runtime.evaluation.night import NIGHT_STYLES
 
 from .config import FAMILIES, GAT_FAMILY, ModelConfig, default_config, validate_config, with_overrides
 from .train_cli import SEED_MAX

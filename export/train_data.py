@@ -21,7 +21,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from dadiff.runtime.crop import context_side, crop_side, mean_colour, subwindow
-from dadiff.runtime.evaluation.datasets import DatasetError, list_frames, plural, read_boxes, warn
+from dadiff.runtime.datamaking.datasets import DatasetError, list_frames, plural, read_boxes, warn
 
 from .train_check import DAY_KINDS
 
@@ -124,10 +124,10 @@ class SceneSource:
     def __init__(self, split: str = "train", max_gap: int = 60, pairs_per_scene: int = 4,
                  source: str = "skimage", companions: float = 0.0, stretch: float = 0.0,
                  cutouts: str | Path | None = None) -> None:
-        from dadiff.runtime.evaluation.library import LibraryError
-        from dadiff.runtime.evaluation.library_scenes import library_images, open_scene_library
-        from dadiff.runtime.evaluation.photos import load_photos
-        from dadiff.runtime.evaluation.scenes import SceneError
+        from dadiff.runtime.datamaking.library import LibraryError
+        from dadiff.runtime.datamaking.library_scenes import library_images, open_scene_library
+        from dadiff.runtime.datamaking.photos import load_photos
+        from dadiff.runtime.datamaking.scenes import SceneError
 
         if source not in ("skimage", "library"):
             raise ValueError(f"unknown scene source {source!r}; expected skimage or library")
@@ -140,7 +140,7 @@ class SceneSource:
             self.photos = load_photos(split) if source == "skimage" else None
             self.library = open_scene_library() if source == "library" else None
             if cutouts is not None:
-                from dadiff.runtime.evaluation.cutouts import CutoutTargets
+                from dadiff.runtime.datamaking.cutouts import CutoutTargets
 
                 self.library = CutoutTargets(self.library, cutouts)
                 library_images(self.library, split)  # no cut-out of this split: say so now, not mid-run
@@ -154,8 +154,8 @@ class SceneSource:
         self._scene, self._uses = None, 0
 
     def _new_scene(self, rng: np.random.Generator):
-        from dadiff.runtime.evaluation.library_scenes import random_library_scene
-        from dadiff.runtime.evaluation.scene import Scene
+        from dadiff.runtime.datamaking.library_scenes import random_library_scene
+        from dadiff.runtime.datamaking.scene import Scene
 
         if self.library is not None:
             companion = self.companions > 0 and rng.random() < self.companions  # no draw at 0: same stream
@@ -186,7 +186,7 @@ class SceneSource:
         and its street lights fixed on the ground, so the pool the template was lit by is still there in the
         search frame, with or without the target in it. `path_lamps`: the share of pairs that also get 1-3
         lamp heads beside the target in the template or search frame (no draw at 0: the stream stays as it was)."""
-        from dadiff.runtime.evaluation.scenes import SceneNight
+        from dadiff.runtime.datamaking.scenes import SceneNight
 
         scene, i, j = self._pair
         night = SceneNight(scene, rng, style)
@@ -292,8 +292,8 @@ class SequenceSource:
         on the template frame, so the template and the search frame are lit alike. Otherwise (and for the
         "classic" style) each frame gets its own random night, as before. `path_lamps` is a scene's (it needs
         the scene's ground)."""
-        from dadiff.runtime.evaluation.fixed_camera import night_sequence
-        from dadiff.runtime.evaluation.night import render_night
+        from dadiff.runtime.datamaking.fixed_camera import night_sequence
+        from dadiff.runtime.datamaking.night import render_night
 
         if not self.one_night or style != "real":
             return render_night(fi, rng, style=style), render_night(fj, rng, style=style)
@@ -390,7 +390,7 @@ class PairStream(IterableDataset):
 
     @staticmethod
     def _night(frame: np.ndarray, rng: np.random.Generator, style: str) -> np.ndarray:
-        from dadiff.runtime.evaluation.night import render_night
+        from dadiff.runtime.datamaking.night import render_night
 
         return render_night(frame, rng, style=style)
 

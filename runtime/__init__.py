@@ -1,7 +1,9 @@
 """dadiff.runtime: torch-free tracker on onnxruntime (`Tracker.load(...)`, then `init` and `update`).
 
-The names below load on first use, so that code needing only the crop or the evaluation helpers (training on
-a machine without onnxruntime, say) can import its modules without pulling onnxruntime in.
+This level is the onboard tracker and what it needs in flight; the commands (`commands/`), evaluation
+(`evaluation/`) and data making (`datamaking/`) sit in subpackages that this level never imports. The names
+below load on first use, so that code needing only the crop or data making (training on a machine without
+onnxruntime, say) can import its modules without pulling onnxruntime in.
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ Measured: the default int8 recipe agreed with fp32 on the chosen cell 82 % of th
 from __future__ import annotations
 
 import platform
+import sys
 from functools import cache
 from pathlib import Path
 
@@ -54,3 +55,10 @@ def int8_warning(meta: dict[str, str] | object) -> str | None:
     if '"reduce_range": true' in str(get("quantization", "")):
         return None
     return INT8_WARNING
+
+
+def warn_int8(prog: str, tracker: object) -> None:
+    """One warning line on stderr when `tracker` runs an int8 model where its int8 kernels saturate."""
+    warning = int8_warning(getattr(getattr(tracker, "backend", None), "meta", None))
+    if warning:
+        print(f"{prog}: warning: {warning}", file=sys.stderr)

@@ -162,7 +162,7 @@ class Mp4Writer:
     index (the `moov` atom, written last), leaving a file no player opens, and the run ended with exit 0.
     `close` opens the written file again and counts its frames; a file that does not hold every frame is
     removed and OutputError names it. Frames are finalised on every ending the process sees (the commands
-    turn SIGINT, SIGTERM and SIGHUP into KeyboardInterrupt, so `close` runs: runtime/launch.py).
+    turn SIGINT, SIGTERM and SIGHUP into KeyboardInterrupt, so `close` runs: runtime/commands/launch.py).
     """
 
     def __init__(self, path: Path, size: tuple[int, int], fps: float = 30.0) -> None:

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dadiff.runtime import bench_cli
-from dadiff.runtime.bench import STAGES, BenchLane, run_lanes, write_night_video
+from dadiff.runtime.commands import bench as bench_cli
+from dadiff.runtime.commands.bench_lanes import STAGES, BenchLane, run_lanes, write_night_video
 from dadiff.runtime.evaluation.evaluate import nano_available, nano_problem, opencv_available
 from runtime_models import write_corr_model
 

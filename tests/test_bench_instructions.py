@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dadiff.runtime import bench_cli, instructions
-from dadiff.runtime.bench import write_night_video
+from dadiff.runtime.commands import bench as bench_cli
+from dadiff.runtime.commands import bench_instructions as instructions
+from dadiff.runtime.commands.bench_instructions import InstructionCountError, UpdateCount, callgrind_total, per_update
+from dadiff.runtime.commands.bench_lanes import write_night_video
 from dadiff.runtime.evaluation.evaluate import nano_available, nano_files
-from dadiff.runtime.instructions import InstructionCountError, UpdateCount, callgrind_total, per_update
 from runtime_models import write_corr_model
 
 CALLGRIND_TEXT = "version: 1\ncreator: callgrind-3.19.0\nevents: Ir\nsummary: 2016277912\n\ntotals: 2016277912\n"

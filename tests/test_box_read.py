@@ -12,11 +12,11 @@ import pytest
 from test_runtime_plausible import FRAME, ScriptedBackend
 
 from dadiff.runtime import InputError, Tracker
+from dadiff.runtime.commands.eval import main
+from dadiff.runtime.datamaking.datasets import Dataset, Sequence
+from dadiff.runtime.datamaking.scenes import write_benchmark
 from dadiff.runtime.evaluation.box_read import box_read, format_box_read, read_ratios, summarise
-from dadiff.runtime.evaluation.cli import main
-from dadiff.runtime.evaluation.datasets import Dataset, Sequence
 from dadiff.runtime.evaluation.evaluate import EvalError
-from dadiff.runtime.evaluation.scenes import write_benchmark
 
 
 def test_look_reads_the_networks_box_where_the_crop_was_cut_and_leaves_the_state() -> None:

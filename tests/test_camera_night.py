@@ -19,10 +19,10 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation import camera_night, night_sets
-from dadiff.runtime.evaluation.camera_night import NightCamera, night_statistics, render_night
-from dadiff.runtime.evaluation.cli import main as eval_main
-from dadiff.runtime.evaluation.datasets import load_dataset
+from dadiff.runtime.commands.eval import main as eval_main
+from dadiff.runtime.datamaking import camera_night, night_sets
+from dadiff.runtime.datamaking.camera_night import NightCamera, night_statistics, render_night
+from dadiff.runtime.datamaking.datasets import load_dataset
 
 SIZE = (320, 240)
 CAMERAS = range(16)
@@ -110,7 +110,7 @@ def test_no_code_of_the_generators_night_is_imported():
         names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
         assert not names & {"night", "scene", "scenes", "library_scenes", "fixed_camera"}, module.__name__
-    code = ("import sys, dadiff.runtime.evaluation.camera_night, dadiff.runtime.evaluation.night_sets; "
+    code = ("import sys, dadiff.runtime.datamaking.camera_night, dadiff.runtime.datamaking.night_sets; "
             "print(sorted(m for m in sys.modules if m.rsplit('.', 1)[-1] in "
             "('night', 'scene', 'scenes', 'library_scenes', 'fixed_camera')))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -9,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation import library_scenes
-from dadiff.runtime.evaluation.cli import main
-from dadiff.runtime.evaluation.cutouts import CutoutTargets, CutSettings, cut_out, cutout_images, write_cutouts
-from dadiff.runtime.evaluation.datasets import load_dataset
-from dadiff.runtime.evaluation.library import LibraryError, LibraryImage, split_of
-from dadiff.runtime.evaluation.scenes import write_benchmark, write_boxes, write_frame
+from dadiff.runtime.commands.eval import main
+from dadiff.runtime.datamaking import library_scenes
+from dadiff.runtime.datamaking.cutouts import CutoutTargets, CutSettings, cut_out, cutout_images, write_cutouts
+from dadiff.runtime.datamaking.datasets import load_dataset
+from dadiff.runtime.datamaking.library import LibraryError, LibraryImage, split_of
+from dadiff.runtime.datamaking.scenes import write_benchmark, write_boxes, write_frame
 
 
 def _background(h: int, w: int, seed: int) -> np.ndarray:

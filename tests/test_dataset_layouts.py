@@ -10,9 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.cli import main
-from dadiff.runtime.evaluation.datasets import DatasetError, load_dataset
-from dadiff.runtime.evaluation.evaluate import EvalError, read_frame
+from dadiff.runtime.commands.eval import main
+from dadiff.runtime.datamaking.datasets import DatasetError, load_dataset, read_frame
 from dadiff.runtime.sources import image_files
 
 
@@ -284,10 +283,10 @@ def test_a_missing_later_frame_of_a_json_is_not_found_before_tracking(tmp_path):
         load_dataset(root)
     assert str(info.value) == f"{root / 'bike1' / '000003.jpg'}: frame 3 of bike1 not found (paths are relative " \
                               f"to {root})"
-    with pytest.raises(EvalError, match=r"000003.jpg: not found$"):
+    with pytest.raises(DatasetError, match=r"000003.jpg: not found$"):
         read_frame(root / "bike1" / "000003.jpg")
     (root / "bike1" / "000002.jpg").write_bytes(b"not an image")
-    with pytest.raises(EvalError, match=r"000002.jpg: cannot read image$"):
+    with pytest.raises(DatasetError, match=r"000002.jpg: cannot read image$"):
         read_frame(root / "bike1" / "000002.jpg")
 
 

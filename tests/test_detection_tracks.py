@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.cli import main as eval_main
-from dadiff.runtime.evaluation.datasets import load_dataset
-from dadiff.runtime.evaluation.detection_tracks import LinkSettings, link, read_detections, scene_cuts
-from dadiff.runtime.evaluation.detector import write_det_txt
+from dadiff.runtime.commands.eval import main as eval_main
+from dadiff.runtime.datamaking.datasets import load_dataset
+from dadiff.runtime.datamaking.detection_tracks import LinkSettings, link, read_detections, scene_cuts
+from dadiff.runtime.datamaking.detector import write_det_txt
 
 SIZE = (320, 240)  # width, height
 

@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.cli import main as eval_main
-from dadiff.runtime.evaluation.detection_tracks import LinkSettings, read_detections
-from dadiff.runtime.evaluation.detector import Detector, tiles
+from dadiff.runtime.commands.eval import main as eval_main
+from dadiff.runtime.datamaking.detection_tracks import LinkSettings, read_detections
+from dadiff.runtime.datamaking.detector import Detector, tiles
 
 onnx = pytest.importorskip("onnx")
 from detector_models import write_fake_detector as _detector  # noqa: E402

@@ -19,6 +19,7 @@ import pytest
 from conftest import hangup_as_in_a_session
 from dadiff.drone import cli
 from dadiff.drone.mav import mavlink
+from dadiff.runtime.commands import run
 from drone_peers import GroundStation, free_port, wait_until
 from runtime_models import write_corr_model
 from runtime_scenes import FRAME_H, FRAME_W, moving_sequence
@@ -59,7 +60,7 @@ def test_config_file_run_streams_the_tracked_boxes(media: dict[str, Path], tmp_p
         )
     )
     try:
-        rc = cli.main(["--config", str(config), "--max-frames", "30"])  # the command line wins
+        rc = run.main(["--config", str(config), "--max-frames", "30"])  # the command line wins
     finally:
         assert wait_until(lambda: len(gcs.received("CAMERA_TRACKING_IMAGE_STATUS")) > 0, 2)
         gcs.close()
@@ -95,21 +96,20 @@ def test_config_file_run_streams_the_tracked_boxes(media: dict[str, Path], tmp_p
 def test_config_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture, lines: str, message: str) -> None:
     config = tmp_path / "bad.toml"
     config.write_text(lines + "\n")
-    assert cli.main(["--config", str(config), "--video", "0", "--mavlink", "udpin:127.0.0.1:1"]) == 2
+    assert run.main(["--config", str(config), "--video", "0", "--mavlink", "udpin:127.0.0.1:1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("dadiff-run: error:") and message in err[0], err
 
 
 def test_config_values_and_overrides(tmp_path: Path) -> None:
     from dadiff.drone.config import parse_args
-    from dadiff.runtime import cli as runtime_cli
 
     config = tmp_path / "c.toml"
     config.write_text(
         'video = "/dev/video0"\nmavlink = "/dev/ttyAMA0,921600"\nfollow = true\nhp = {lr = 0.4}\n'
         "allow_sysid = [255, 254]\nmax-speed = 2\ncomponent = 101\n"
     )
-    parser = runtime_cli.build_parser()
+    parser = run.build_parser()
     cli.add_mavlink_arguments(parser)
     cli.add_mavlink_arguments(parser)  # twice is harmless
     args = parse_args(parser, ["--config", str(config), "--component", "102"])
@@ -132,7 +132,7 @@ def test_config_values_and_overrides(tmp_path: Path) -> None:
         30,
     )
     assert args.stream_url == "rtsp://10.0.0.2:8554/cam"
-    fresh = runtime_cli.build_parser()
+    fresh = run.build_parser()
     args = parse_args(fresh, ["--mavlink", "udpin:0.0.0.0:14560", "--follow", "--video", "0", "--no-realtime"])
     assert (args.follow, args.realtime, args.allow_sysid) == ("vehicle", False, {255, 245})
     assert parse_args(fresh, ["--follow", "gimbal", "--allow-sysid", "any"]).allow_sysid is None
@@ -141,24 +141,24 @@ def test_config_values_and_overrides(tmp_path: Path) -> None:
 
 def test_bad_inputs_exit_2(media: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     base = ["--mavlink", "udpin:127.0.0.1:1", "--model", str(media["model"])]
-    assert cli.main(["--video", str(tmp_path / "nope.mp4"), *base]) == 2
+    assert run.main(["--video", str(tmp_path / "nope.mp4"), *base]) == 2
     key = tmp_path / "empty.key"
     key.write_bytes(b"")
-    assert cli.main(["--video", str(media["video"]), *base, "--signing-key", str(key)]) == 2
-    assert cli.main(["--video", str(media["video"]), "--mavlink", "udpin:127.0.0.1:1", "--model", "/no/model"]) == 2
-    assert cli.main(["--video", str(media["video"]), *base, "--follow-rate", "50"]) == 2
+    assert run.main(["--video", str(media["video"]), *base, "--signing-key", str(key)]) == 2
+    assert run.main(["--video", str(media["video"]), "--mavlink", "udpin:127.0.0.1:1", "--model", "/no/model"]) == 2
+    assert run.main(["--video", str(media["video"]), *base, "--follow-rate", "50"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 4 and all(line.startswith("dadiff-run: error:") for line in err)
 
 
 CHILD = PRELUDE + textwrap.dedent(
     """
-    from dadiff.drone import cli
+    from dadiff.runtime.commands import run
 
     video, model, port = sys.argv[1:4]
     argv = ["--video", video, "--model", model, "--mavlink", f"udpout:127.0.0.1:{port}", "--sysid", "1",
             "--init", "220,160,40,40", "--max-frames", "10", "--follow", "--threads", "1"]
-    assert cli.main(argv) == 0
+    assert run.main(argv) == 0
     loaded = [m for m in sys.modules if any(m == b or m.startswith(b + ".") for b in BLOCKED)]
     assert not loaded, loaded
     print("drone ok without torch/onnx/export")
@@ -185,8 +185,8 @@ def test_sigterm_stops_cleanly(media: dict[str, Path], tmp_path: Path, sig: int,
     script = textwrap.dedent(
         """
         import sys
-        from dadiff.drone import cli
-        sys.exit(cli.main(sys.argv[1:]))
+        from dadiff.runtime.commands import run
+        sys.exit(run.main(sys.argv[1:]))
         """
     )
     port = free_port()
@@ -224,7 +224,7 @@ def test_rehearse_a_recorded_flight_with_a_ground_station(media: dict[str, Path]
             "--mavlink", f"udpout:127.0.0.1:{port}", "--loop", "--max-frames", "60"]  # fmt: skip
     result: list[int] = []
     start = time.monotonic()
-    runner = threading.Thread(target=lambda: result.append(cli.main(argv)), daemon=True)
+    runner = threading.Thread(target=lambda: result.append(run.main(argv)), daemon=True)
     try:
         runner.start()
         beat = gcs.wait_for("HEARTBEAT", 10, where=lambda m: m.get_srcComponent() == 100)
@@ -251,13 +251,12 @@ def test_options_reach_the_service_settings() -> None:
 
     from dadiff.drone.camera import DEFAULT_ALLOWED
     from dadiff.drone.config import parse_args
-    from dadiff.runtime import cli as runtime_cli
 
     assert cli.ALLOWED_DEFAULT == DEFAULT_ALLOWED == {255, 245}  # the parser's copy (no pymavlink at parse time)
     base = ["--video", "0", "--mavlink", "udpout:127.0.0.1:14550"]
     extra = ["--follow", "gimbal", "--gimbal-rate", "40", "--max-gimbal-rate", "30"]
     extra += ["--stream-url", "rtsp://10.0.0.2/cam", "--no-realtime", "--loop"]
-    args = parse_args(runtime_cli.build_parser(), [*base, *extra])
+    args = parse_args(run.build_parser(), [*base, *extra])
     s = cli._settings(args, b"k" * 32)
     assert s.follow is None and s.gimbal is not None and s.gimbal.rate_hz == 40
     assert s.gimbal.max_rate == pytest.approx(math.radians(30))
@@ -267,6 +266,6 @@ def test_options_reach_the_service_settings() -> None:
         True,
         {255, 245},
     )
-    s = cli._settings(parse_args(runtime_cli.build_parser(), [*base, "--follow", "--allow-sysid", "any"]), None)
+    s = cli._settings(parse_args(run.build_parser(), [*base, "--follow", "--allow-sysid", "any"]), None)
     assert s.follow is not None and s.gimbal is None and s.camera.allowed_sysids is None and s.realtime
     assert not s.camera.trust_signed

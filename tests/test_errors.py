@@ -57,7 +57,7 @@ def test_the_builtin_bases_callers_relied_on_stay():
 
 
 def test_an_entry_point_reports_any_dadiff_error_in_one_line(monkeypatch, capsys):
-    from dadiff.runtime import bench_cli
+    from dadiff.runtime.commands import bench as bench_cli
 
     class NewProblem(DadiffError):
         pass

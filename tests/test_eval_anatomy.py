@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from dadiff.runtime.commands.eval import main
+from dadiff.runtime.datamaking.datasets import load_dataset
 from dadiff.runtime.evaluation.anatomy import anatomy, grey_bins
-from dadiff.runtime.evaluation.cli import main
-from dadiff.runtime.evaluation.datasets import load_dataset
 
 BOX = (20, 10, 10, 10)
 FRAMES = 4

@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
+from dadiff.runtime.commands import eval as eval_cli
+from dadiff.runtime.commands.eval import main
 from dadiff.runtime.config import TUNABLE_KEYS
-from dadiff.runtime.evaluation import cli as eval_cli
 from dadiff.runtime.evaluation import evaluate
-from dadiff.runtime.evaluation.cli import main
 from dadiff.runtime.evaluation.evaluate import (
     EvalError,
     OpenCVTracker,
@@ -186,7 +186,7 @@ def test_nano_without_weights_is_one_line_exit_2(bench, tmp_path, capsys):
 
 def test_run_takes_tracker_settings(corr_model, bench, tmp_path, capsys):
     """`--hp` reaches the evaluated tracker; a wrong key or a baseline tracker is one line and exit 2."""
-    from dadiff.runtime.evaluation.cli import _make_tracker, build_parser
+    from dadiff.runtime.commands.eval import _make_tracker, build_parser
 
     args = build_parser().parse_args(["run", "--model", str(corr_model), "--dataset", str(bench), "--output",
                                       str(tmp_path), "--hp", "motion_compensation=0,lost_frames=5"])
@@ -481,7 +481,7 @@ def test_score_counts_one_sequence_in_the_singular(bench, tmp_path, capsys):
 
 def test_generate_without_scikit_image_leaves_no_folder(tmp_path, capsys, monkeypatch):
     """The photos were checked after the --out folder was made: an empty folder stayed behind."""
-    from dadiff.runtime.evaluation import photos
+    from dadiff.runtime.datamaking import photos
 
     monkeypatch.setitem(sys.modules, "skimage", None)  # `import skimage.data` raises ImportError
     monkeypatch.setitem(sys.modules, "skimage.data", None)
@@ -543,7 +543,7 @@ def _shifted_results(bench, root, shifts):
 
 
 def test_table_gives_one_markdown_row_per_tracker_with_intervals_and_seed_spread(bench, tmp_path, capsys):
-    from dadiff.runtime.evaluation.datasets import load_dataset
+    from dadiff.runtime.datamaking.datasets import load_dataset
     from dadiff.runtime.evaluation.evaluate import score_folder
 
     results = tmp_path / "results" / "bench"

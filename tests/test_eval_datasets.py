@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.datasets import DatasetError, load_dataset, parse_attributes, read_boxes
+from dadiff.runtime.datamaking.datasets import DatasetError, load_dataset, parse_attributes, read_boxes
 
 
 def _frames(folder: Path, n: int, pattern: str = "{:04d}.jpg") -> None:

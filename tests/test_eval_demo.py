@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import pytest
 
+from dadiff.runtime.commands.demo import run_demo
 from dadiff.runtime.errors import ModelError
-from dadiff.runtime.evaluation.demo import run_demo
 
 pytest.importorskip("skimage")  # the scene photos
 

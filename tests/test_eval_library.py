@@ -13,10 +13,10 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation import library as lib
-from dadiff.runtime.evaluation.cli import main
-from dadiff.runtime.evaluation.library import LibraryError, fetch, library_root, open_library, split_of
-from dadiff.runtime.evaluation.rcc import FLAG_DIRECTORY, FLAG_ZLIB, FLAG_ZSTD, RccArchive, RccError
+from dadiff.runtime.commands.eval import main
+from dadiff.runtime.datamaking import library as lib
+from dadiff.runtime.datamaking.library import LibraryError, fetch, library_root, open_library, split_of
+from dadiff.runtime.datamaking.rcc import FLAG_DIRECTORY, FLAG_ZLIB, FLAG_ZSTD, RccArchive, RccError
 
 pytestmark = pytest.mark.skipif(shutil.which("dpkg-deb") is None, reason="needs dpkg-deb to build test packages")
 

@@ -20,11 +20,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.camera_night import night_statistics  # the note's statistics, one frame
-from dadiff.runtime.evaluation.night import NightLights, RealNight, render_night
-from dadiff.runtime.evaluation.photos import load_photos
-from dadiff.runtime.evaluation.scene import Scene
-from dadiff.runtime.evaluation.scenes import make_sequence
+from dadiff.runtime.datamaking.camera_night import night_statistics  # the note's statistics, one frame
+from dadiff.runtime.datamaking.night import NightLights, RealNight, render_night
+from dadiff.runtime.datamaking.photos import load_photos
+from dadiff.runtime.datamaking.scene import Scene
+from dadiff.runtime.datamaking.scenes import make_sequence
 
 pytest.importorskip("skimage")  # the scene photos
 

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 from dadiff.runtime.cpu import cpu_flags
-from dadiff.runtime.evaluation import library_scenes
-from dadiff.runtime.evaluation.datasets import load_dataset
-from dadiff.runtime.evaluation.geometry import visible_box
-from dadiff.runtime.evaluation.library_scenes import random_library_scene
-from dadiff.runtime.evaluation.night import RealNight, motion_blur, poisson, render_night
-from dadiff.runtime.evaluation.photos import PHOTO_SPLITS, load_photos
-from dadiff.runtime.evaluation.scene import Scene
-from dadiff.runtime.evaluation.scenes import SceneError, SceneNight, make_sequence, write_benchmark
+from dadiff.runtime.datamaking import library_scenes
+from dadiff.runtime.datamaking.datasets import load_dataset
+from dadiff.runtime.datamaking.geometry import visible_box
+from dadiff.runtime.datamaking.library_scenes import random_library_scene
+from dadiff.runtime.datamaking.night import RealNight, motion_blur, poisson, render_night
+from dadiff.runtime.datamaking.photos import PHOTO_SPLITS, load_photos
+from dadiff.runtime.datamaking.scene import Scene
+from dadiff.runtime.datamaking.scenes import SceneError, SceneNight, make_sequence, write_benchmark
 
 pytest.importorskip("skimage")  # the scene photos
 
@@ -42,7 +42,7 @@ def test_photo_splits_are_fixed_disjoint_and_bgr():
 
 
 def test_importing_the_generator_does_not_import_skimage():
-    code = "import sys, dadiff.runtime.evaluation.scenes; sys.exit('skimage' in sys.modules)"
+    code = "import sys, dadiff.runtime.datamaking.scenes; sys.exit('skimage' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
 
 
@@ -142,7 +142,7 @@ def test_write_benchmark_is_read_back_as_an_otb_dataset(tmp_path):
 def test_interrupted_write_benchmark_resumes_with_the_same_settings(tmp_path, monkeypatch):
     """Issue 55: `dadiff-eval generate`, interrupted, said "run again to resume", and run again refused the
     folder. The same settings now finish it (sequences already whole are kept); other settings are refused."""
-    from dadiff.runtime.evaluation import scenes
+    from dadiff.runtime.datamaking import scenes
 
     whole = write_benchmark(tmp_path / "whole", sequences=3, frames=2, seed=5, size=SMALL, workers=1)
     real, written = scenes._write_sequence, []
@@ -273,7 +273,7 @@ def test_motion_blur_spreads_a_point_along_the_motion():
 
 @dataclass
 class FakeImage:
-    """A library image (the API of runtime/evaluation/library.py's LibraryImage) that records its loads."""
+    """A library image (the API of runtime/datamaking/library.py's LibraryImage) that records its loads."""
 
     package: str
     source: str
@@ -502,7 +502,7 @@ def test_a_gust_knocks_the_whole_picture_once_and_the_rest_is_the_scene_without_
 def test_gusts_need_the_library_source(tmp_path, capsys):
     with pytest.raises(SceneError, match="gusts need the library source"):
         write_benchmark(tmp_path / "g", 1, 2, 0, size=SMALL, workers=1, gusts=True)
-    from dadiff.runtime.evaluation.cli import main
+    from dadiff.runtime.commands.eval import main
 
     assert main(["generate", "--output", str(tmp_path / "c"), "--max-frames", "2", "--gusts"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -531,10 +531,10 @@ def test_library_scenes_keep_train_and_test_apart(monkeypatch):
 
 
 def test_library_source_needs_a_fetched_library(monkeypatch):
-    module = types.ModuleType("dadiff.runtime.evaluation.library")
+    module = types.ModuleType("dadiff.runtime.datamaking.library")
     module.open_library = lambda: None
     module.LibraryError = type("LibraryError", (Exception,), {})
-    monkeypatch.setitem(sys.modules, "dadiff.runtime.evaluation.library", module)
+    monkeypatch.setitem(sys.modules, "dadiff.runtime.datamaking.library", module)
     with pytest.raises(SceneError, match="run dadiff-eval data fetch first"):
         make_sequence(1, frames=1, size=SMALL, source="library")
 
@@ -559,17 +559,17 @@ def test_library_benchmark_defaults_to_the_real_night(tmp_path, library):
 
 
 def test_generate_cli_writes_source_and_night(tmp_path, monkeypatch, capsys):
-    from dadiff.runtime.evaluation.cli import main
+    from dadiff.runtime.commands.eval import main
 
     args = ["generate", "--sequences", "1", "--max-frames", "2", "--size", "192x128", "--workers", "1"]
     assert main([*args, "--output", str(tmp_path / "real"), "--night", "real"]) == 0
     info = json.loads((tmp_path / "real" / "benchmark.json").read_text())
     assert (info["source"], info["night"]) == ("skimage", "real")
     assert "skimage pictures, real night" in capsys.readouterr().out
-    module = types.ModuleType("dadiff.runtime.evaluation.library")
+    module = types.ModuleType("dadiff.runtime.datamaking.library")
     module.open_library = lambda: None
     module.LibraryError = type("LibraryError", (Exception,), {})
-    monkeypatch.setitem(sys.modules, "dadiff.runtime.evaluation.library", module)
+    monkeypatch.setitem(sys.modules, "dadiff.runtime.datamaking.library", module)
     assert main([*args, "--output", str(tmp_path / "lib"), "--source", "library"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "run dadiff-eval data fetch first" in err[0]

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 
 import pytest
 
+from dadiff.runtime.commands.eval import main
 from dadiff.runtime.errors import InputError
-from dadiff.runtime.evaluation.cli import main
 from dadiff.runtime.evaluation.tune import best_trial, coordinate_search, parse_grid
 
 pytest.importorskip("skimage")  # the scene photos

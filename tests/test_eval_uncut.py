@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.cli import main as eval_main
-from dadiff.runtime.evaluation.datasets import load_dataset
+from dadiff.runtime.commands.eval import main as eval_main
+from dadiff.runtime.datamaking.datasets import load_dataset
 from dadiff.runtime.evaluation.evaluate import write_result, write_states
 from dadiff.runtime.evaluation.uncut import read_truth, uncut_scores
 

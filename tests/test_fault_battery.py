@@ -201,9 +201,9 @@ N_VIDEOS, N_FOLDERS, N_MODELS, N_RUN_CONFIGS, N_HP, N_BENCH_MODELS = 24, 12, 24,
 N_EVAL_MODELS, N_EVAL_DATASETS, N_EVAL_RESULTS = 8, 8, 8
 N_DETECTIONS, N_DETECTORS = 8, 6
 N_CHECKPOINTS, N_EXPORT_MODELS, N_TRAIN_CONFIGS = 24, 6, 24
-PROGS = {"dadiff.runtime.cli": "dadiff-run", "dadiff.runtime.evaluation.cli": "dadiff-eval",
+PROGS = {"dadiff.runtime.commands.run": "dadiff-run", "dadiff.runtime.commands.eval": "dadiff-eval",
          "dadiff.export.cli": "dadiff-export", "dadiff.export.train_cli": "dadiff-train",
-         "dadiff.runtime.bench_cli": "dadiff-bench"}
+         "dadiff.runtime.commands.bench": "dadiff-bench"}
 BOX = "40,40,20,15"
 
 
@@ -287,7 +287,7 @@ def _runtime_cases(root: Path, rng: random.Random) -> list[dict[str, Any]]:
         cases.append({"id": f"{kind}-{len(cases)}", "kind": kind, "module": module, "argv": argv, "strict": strict,
                       "limit": 60})
 
-    run = "dadiff.runtime.cli"
+    run = "dadiff.runtime.commands.run"
     for i in range(N_VIDEOS):
         ext = (".mp4", ".avi")[i % 2]
         path = root / f"video{i}{ext}"
@@ -312,27 +312,27 @@ def _runtime_cases(root: Path, rng: random.Random) -> list[dict[str, Any]]:
         add("hp", run, ["--video", str(root / "base.mp4"), "--init", BOX, "--model", str(model), "--max-frames", "8",
                         "--hp", _hp(rng)], strict=False)
     for i in range(N_BENCH_MODELS):
-        add("model", "dadiff.runtime.bench_cli", ["--model", str(root / f"model{3 * i}"), "--clip", "4",
+        add("model", "dadiff.runtime.commands.bench", ["--model", str(root / f"model{3 * i}"), "--clip", "4",
                                                   "--max-frames", "2", "--warmup", "0", "--no-nano", "--json"],
             strict=False)
     dataset = root / "bench"
     _sequence(dataset / "seq001", _frames(8))
     for i in range(N_EVAL_MODELS):
-        add("model", "dadiff.runtime.evaluation.cli", ["run", "--dataset", str(dataset), "--output",
+        add("model", "dadiff.runtime.commands.eval", ["run", "--dataset", str(dataset), "--output",
             str(root / f"res{i}"), "--model", str(root / f"model{i}"), "--no-progress", "--no-plots"], strict=False)
     for i in range(N_EVAL_RESULTS):
         results = root / f"results{i}" / "T"
         results.mkdir(parents=True)
         truth = "".join(f"{40 + k},40,20,15\n" for k in range(8)).encode()
         (results / "seq001.txt").write_bytes(mutate(truth, rng))
-        add("results", "dadiff.runtime.evaluation.cli", ["score", "--dataset", str(dataset), str(results)],
+        add("results", "dadiff.runtime.commands.eval", ["score", "--dataset", str(dataset), str(results)],
             strict=False)
     for i in range(N_EVAL_DATASETS):
         damaged = root / f"bench{i}"
         seq = _sequence(damaged / "seq001", _frames(8))
         target = seq / "groundtruth_rect.txt" if i % 2 else rng.choice(sorted((seq / "img").iterdir()))
         target.write_bytes(mutate(target.read_bytes(), rng))
-        add("dataset", "dadiff.runtime.evaluation.cli", ["run", "--dataset", str(damaged), "--output",
+        add("dataset", "dadiff.runtime.commands.eval", ["run", "--dataset", str(damaged), "--output",
             str(root / f"dres{i}"), "--model", str(model), "--no-progress", "--no-plots"], strict=False)
     _pseudo_label_cases(root, rng, add)
     return cases
@@ -346,14 +346,14 @@ def _pseudo_label_cases(root: Path, rng: random.Random, add: Any) -> None:
     for i in range(N_DETECTIONS):
         det = root / f"det{i}.txt"
         det.write_bytes(mutate(truth, rng))
-        add("detections", "dadiff.runtime.evaluation.cli", ["pseudo-label", "--video", str(root / "base.mp4"),
+        add("detections", "dadiff.runtime.commands.eval", ["pseudo-label", "--video", str(root / "base.mp4"),
             "--detections", str(det), "--output", str(root / f"pl{i}"), "--min-frames", "5", "--aspect", "0.2-5",
             "--min-height", "10"], strict=False)
     good = write_fake_detector(root / "detector.onnx", [[0.3, 0.25, 0.45, 0.4]], [0.9], [1.0]).read_bytes()
     for i in range(N_DETECTORS):
         bad = root / f"detector{i}.onnx"
         bad.write_bytes(mutate(good, rng))
-        add("detector", "dadiff.runtime.evaluation.cli", ["detect", "--video", str(root / "base.mp4"),
+        add("detector", "dadiff.runtime.commands.eval", ["detect", "--video", str(root / "base.mp4"),
             "--detector", str(bad), "--output", str(root / f"det_out{i}.txt")], strict=False)
 
 
@@ -546,7 +546,7 @@ def _new_user_cases(root: Path, held_port: int) -> list[dict[str, Any]]:
         cases.append({"id": f"{kind}-{len(cases)}", "kind": kind, "module": module, "argv": argv, "strict": True,
                       "limit": 20, "env": env or {}})
 
-    run, ev, bench = "dadiff.runtime.cli", "dadiff.runtime.evaluation.cli", "dadiff.runtime.bench_cli"
+    run, ev, bench = "dadiff.runtime.commands.run", "dadiff.runtime.commands.eval", "dadiff.runtime.commands.bench"
     track = ["--init", BOX, "--model", str(model), "--max-frames", "3"]
     service = ["--video", str(video), *track, "--mavlink"]
     add("fifo", run, ["--config", str(fifo)])
@@ -611,12 +611,12 @@ def test_inputs_the_user_may_not_read_are_one_line(tmp_path) -> None:
     config = tmp_path / "locked.toml"
     config.write_text(f'video = "{seq}"\n')
     add = {"strict": True, "limit": 30}
-    run = "dadiff.runtime.cli"
+    run = "dadiff.runtime.commands.run"
     cases = [
         {"id": "folder-0", "kind": "unreadable", "module": run, "argv": ["--video", str(seq), "--model", str(model)]},
         {"id": "folder-1", "kind": "unreadable", "module": run, "argv": [
             "--video", str(seq), "--model", str(model), "--mavlink", f"udpin:127.0.0.1:{free_port()}"]},
-        {"id": "folder-2", "kind": "unreadable", "module": "dadiff.runtime.evaluation.cli", "argv": [
+        {"id": "folder-2", "kind": "unreadable", "module": "dadiff.runtime.commands.eval", "argv": [
             "run", "--dataset", str(tmp_path / "locked"), "--output", str(tmp_path / "res"), "--model", str(model),
             "--no-progress", "--no-plots"]},
         {"id": "config-3", "kind": "unreadable", "module": run, "argv": ["--config", str(config)]},
@@ -639,7 +639,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def _command(prog: str, argv: list[str], **kwargs: Any) -> subprocess.Popen:
-    """`prog` started as its console script starts it (runtime/launch.py), in a child process."""
+    """`prog` started as its console script starts it (runtime/commands/launch.py), in a child process."""
     module, function = ENTRY_POINTS[prog].split(":")
     code = f"import sys; from {module} import {function} as entry; sys.exit(entry())"  # as the console script
     env = {**os.environ, **kwargs.pop("env", {})}

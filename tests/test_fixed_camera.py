@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.cli import main as eval_main
-from dadiff.runtime.evaluation.datasets import load_dataset
-from dadiff.runtime.evaluation.fixed_camera import LabelSettings, label_tracks, read_video
+from dadiff.runtime.commands.eval import main as eval_main
+from dadiff.runtime.datamaking.datasets import load_dataset
+from dadiff.runtime.datamaking.fixed_camera import LabelSettings, label_tracks, read_video
 
 SIZE = (320, 240)  # width, height
 

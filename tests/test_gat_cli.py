@@ -11,9 +11,10 @@ import pytest
 
 pytest.importorskip("torch")
 
-from dadiff.runtime import Tracker, cli  # noqa: E402
-from dadiff.runtime.bench import time_search  # noqa: E402
-from dadiff.runtime.evaluation.cli import main as eval_main  # noqa: E402
+from dadiff.runtime import Tracker
+from dadiff.runtime.commands import run as cli  # noqa: E402
+from dadiff.runtime.commands.bench_lanes import time_search  # noqa: E402
+from dadiff.runtime.commands.eval import main as eval_main  # noqa: E402
 
 FRAMES = 3  # 66 GFLOP per search frame: a few frames say the commands work
 

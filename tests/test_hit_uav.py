@@ -9,15 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime.evaluation.cli import main as eval_main
-from dadiff.runtime.evaluation.datasets import load_dataset
-from dadiff.runtime.evaluation.hit_uav import (
-    CHECKOUT_DATA,
-    ChainSettings,
-    Registration,
-    build_chains,
-    read_split,
-)
+from dadiff.runtime.commands.eval import main as eval_main
+from dadiff.runtime.datamaking.datasets import load_dataset
+from dadiff.runtime.datamaking.hit_uav import CHECKOUT_DATA, ChainSettings, Registration, build_chains, read_split
 
 SIZE = (640, 512)  # width, height of a HIT-UAV still
 

@@ -12,9 +12,9 @@ import pytest
 from dadiff.export.cli import build_parser as export_parser
 from dadiff.export.train_cli import build_parser as train_parser
 from dadiff.runtime.argtypes import add_renamed
-from dadiff.runtime.bench_cli import build_parser as bench_parser
-from dadiff.runtime.cli import build_parser as run_parser
-from dadiff.runtime.evaluation.cli import build_parser as eval_parser
+from dadiff.runtime.commands.bench import build_parser as bench_parser
+from dadiff.runtime.commands.eval import build_parser as eval_parser
+from dadiff.runtime.commands.run import build_parser as run_parser
 
 Parser = Callable[[], argparse.ArgumentParser]
 

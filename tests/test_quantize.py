@@ -20,7 +20,7 @@ from dadiff.export.cli import main  # noqa: E402
 from dadiff.export.quantize import QuantizeError, QuantizeSettings, quantize_model, read_metadata  # noqa: E402
 from dadiff.runtime import Tracker  # noqa: E402
 from dadiff.runtime.config import REQUIRED_KEYS, TUNABLE_KEYS  # noqa: E402
-from dadiff.runtime.evaluation.scenes import make_sequence  # noqa: E402
+from dadiff.runtime.datamaking.scenes import make_sequence  # noqa: E402
 
 TINY = QuantizeSettings(frames=4, eval_sequences=1, eval_frames=3, bench_runs=0)
 TINY_ARGS = ["--calibration-frames", "3", "--eval-sequences", "1", "--max-frames", "3", "--bench-runs", "0"]

@@ -21,7 +21,7 @@ import pytest
 from dadiff.drone.cli import mavlink_conn
 from dadiff.drone.link import parse_datagram
 from dadiff.drone.mav import mavlink
-from dadiff.runtime import cli
+from dadiff.runtime.commands import run as cli
 from dadiff.runtime.cpu import INT8_WARNING, cpu_flags, int8_saturates, int8_warning
 from dadiff.runtime.outputs import OutputError, TrackLog
 from dadiff.runtime.sources import Frame, read_image
@@ -277,7 +277,7 @@ def test_demo_out_naming_a_file_is_one_line(tmp_path, capsys) -> None:
 
 
 def test_sigterm_during_demo_stops_cleanly(monkeypatch, tmp_path, capsys) -> None:
-    import dadiff.runtime.evaluation.demo as demo
+    import dadiff.runtime.commands.demo as demo
 
     def killed(*args: object, **kw: object) -> dict:
         os.kill(os.getpid(), signal.SIGTERM)  # what a service manager sends
@@ -461,11 +461,11 @@ def test_rejected_commands_are_logged_throttled(caplog) -> None:
 
 
 HELP_CASES = [
-    ("dadiff.runtime.cli", "dadiff-run"),
-    ("dadiff.runtime.evaluation.cli", "dadiff-eval"),
+    ("dadiff.runtime.commands.run", "dadiff-run"),
+    ("dadiff.runtime.commands.eval", "dadiff-eval"),
     ("dadiff.export.cli", "dadiff-export"),
     ("dadiff.export.train_cli", "dadiff-train"),
-    ("dadiff.runtime.bench_cli", "dadiff-bench"),
+    ("dadiff.runtime.commands.bench", "dadiff-bench"),
 ]
 
 
@@ -515,7 +515,7 @@ def test_help_texts_state_defaults() -> None:
     for fragment in ("horizontal speed limit (default 3)", "rotate the log file at this size (default 10000000)",
                      "rotated log files kept (default 5)", "(default: INFO)", "(default: ./dadiff-demo)"):
         assert fragment in " ".join(text.split()), fragment
-    from dadiff.runtime.evaluation.cli import build_parser
+    from dadiff.runtime.commands.eval import build_parser
 
     sub = build_parser()._subparsers._group_actions[0].choices["generate"].format_help()  # type: ignore[union-attr]
     assert "sequences (default 16)" in sub and "frames per sequence (default 120)" in sub
@@ -538,9 +538,10 @@ sys.exit(main(ARGV))
 
 
 @pytest.mark.parametrize(("module", "prog", "argv"), [
-    ("dadiff.runtime.bench_cli", "dadiff-bench", ["--max-frames", "2", "--clip", "3", "--warmup", "0", "--no-nano"]),
-    ("dadiff.runtime.cli", "dadiff-run", ["--demo", "--demo-out", "{tmp}/demo"]),
-    ("dadiff.runtime.evaluation.cli", "dadiff-eval", ["generate", "--output", "{tmp}/gen", "--sequences", "1"]),
+    ("dadiff.runtime.commands.bench", "dadiff-bench",
+     ["--max-frames", "2", "--clip", "3", "--warmup", "0", "--no-nano"]),
+    ("dadiff.runtime.commands.run", "dadiff-run", ["--demo", "--demo-out", "{tmp}/demo"]),
+    ("dadiff.runtime.commands.eval", "dadiff-eval", ["generate", "--output", "{tmp}/gen", "--sequences", "1"]),
 ])
 def test_without_scikit_image_the_generator_says_what_to_install(module, prog, argv, tmp_path) -> None:
     args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
@@ -552,7 +553,7 @@ def test_without_scikit_image_the_generator_says_what_to_install(module, prog, a
 
 
 def test_sub_command_usage_errors_keep_the_command_prefix(capsys) -> None:
-    from dadiff.runtime.evaluation.cli import main
+    from dadiff.runtime.commands.eval import main
 
     with pytest.raises(SystemExit) as info:
         main(["run", "--dataset", "x"])

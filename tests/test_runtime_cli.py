@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime import Tracker, cli
+from dadiff.runtime import Tracker
+from dadiff.runtime.commands import run as cli
 from runtime_models import write_corr_model
 from runtime_scenes import iou, moving_sequence
 
@@ -223,7 +224,7 @@ def test_console_error_is_one_line_without_traceback(data: dict[str, Path]) -> N
         [
             sys.executable,
             "-m",
-            "dadiff.runtime.cli",
+            "dadiff.runtime.commands.run",
             "--video",
             str(data["not_video"]),
             "--init",

@@ -19,7 +19,8 @@ CHILD = PRELUDE + textwrap.dedent(
     import cv2
 
     from dadiff import models
-    from dadiff.runtime import Tracker, cli
+    from dadiff.runtime import Tracker
+    from dadiff.runtime.commands import run as cli
 
     model, seq = sys.argv[1], sys.argv[2]
     images = sorted(Path(seq, "img").iterdir())
@@ -31,7 +32,7 @@ CHILD = PRELUDE + textwrap.dedent(
     assert models.DEFAULT_MODEL in models.list_models()  # the shipped default resolves without torch
     argv = ["--video", seq, "--model", model, "--max-frames", "4", "--output", f"{seq}/out.csv"]
     assert cli.main(argv) == 0
-    from dadiff.runtime import bench_cli
+    from dadiff.runtime.commands import bench as bench_cli
 
     assert bench_cli.main(["--model", model, "--max-frames", "5", "--clip", "6", "--warmup", "1", "--json"]) == 0
     # one line: needs dadiff[export]

@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dadiff.runtime import cli, sources
+from dadiff.runtime import sources
+from dadiff.runtime.commands import run as cli
 from runtime_models import write_corr_model
 from runtime_scenes import moving_sequence
 

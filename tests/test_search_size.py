@@ -55,9 +55,9 @@ def test_trained_model_at_223_tracks_a_night_sequence(tmp_path, capsys):
     A 239 px export, its grid 8 px off centre, drifts to 0.60 there.
     """
     from dadiff.runtime import Tracker
+    from dadiff.runtime.datamaking.scenes import make_sequence
     from dadiff.runtime.evaluation.evaluate import protocol_box
     from dadiff.runtime.evaluation.metrics import success_curve
-    from dadiff.runtime.evaluation.scenes import make_sequence
 
     resume = Path(__file__).resolve().parents[1] / "export" / "resume"
     checkpoint = resume / "mobile-dadiff-cutoutsneckside-ema-average.pt"

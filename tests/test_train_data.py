@@ -15,7 +15,7 @@ from dadiff.export.train_data import (  # noqa: E402
     ban_targets,
     make_day_source,
 )
-from dadiff.runtime.evaluation.scenes import write_benchmark  # noqa: E402
+from dadiff.runtime.datamaking.scenes import write_benchmark  # noqa: E402
 
 
 def test_ban_targets_centre_positive_far_negative():
@@ -78,7 +78,7 @@ def test_a_resumed_stream_draws_new_pairs():
 def test_scene_night_pairs_share_one_camera_and_its_lights():
     """night_pairs "scene": a pair is lit as the evaluation's sequences are, by one night over the scene, so the
     same frame twice differs only by sensor noise; rendered per frame it gets two cameras and two light sets."""
-    from dadiff.runtime.evaluation.night import render_night
+    from dadiff.runtime.datamaking.night import render_night
 
     source = SceneSource("train")
     rng = np.random.default_rng(5)
@@ -94,7 +94,7 @@ def test_sequence_one_night_lights_both_frames_alike_and_off_keeps_the_old_pairs
     """A sequence source's `one_night`: the pair under one camera, fixed lights and the template's exposure, as
     `dadiff-eval video` renders a sequence, so the same frame twice differs only by sensor noise; off, each
     frame gets its own night with the same draws as before the option (recorded runs' streams unchanged)."""
-    from dadiff.runtime.evaluation.night import render_night
+    from dadiff.runtime.datamaking.night import render_night
 
     root = write_benchmark(tmp_path / "bench", sequences=1, frames=4, seed=3, split="train")
     plain, lit = SequenceSource(root), SequenceSource(root, one_night=True)
@@ -161,7 +161,7 @@ def test_negative_pairs_put_another_scenes_object_in_the_search_crop(monkeypatch
 def test_path_lamps_stand_beside_the_target_and_saturate():
     """night_path_lamps: each added lamp head is fixed on the ground 0.7-2.5 target sizes from the target in the
     chosen frame, saturates the picture there, and with the share at 0 nothing is drawn (streams stay as they were)."""
-    from dadiff.runtime.evaluation.scenes import SceneNight
+    from dadiff.runtime.datamaking.scenes import SceneNight
 
     source = SceneSource("train")
     frame, box, _, _ = source.sample(np.random.default_rng(3))

@@ -69,7 +69,7 @@ def test_the_cli_init_is_the_api_init_of_protocol_box(model: Path, tmp_path: Pat
     """`dadiff-run --init x,y,w,h` tracks exactly as `Tracker.init(frame, protocol_box((x, y, w, h)))`."""
     import cv2
 
-    from dadiff.runtime import cli
+    from dadiff.runtime.commands import run as cli
     from dadiff.runtime.crop import protocol_box
 
     frames, boxes = moving_sequence(6)
@@ -155,7 +155,7 @@ def test_a_udpin_port_cannot_be_shared_once_open() -> None:
 def test_a_stop_signal_inside_signals_held_acts_when_the_block_ends() -> None:
     """One frame's record reaches every output or none: Ctrl-C (or SIGTERM under the commands' handling) that
     arrives while the record is written is raised after it, not in between two outputs."""
-    from dadiff.runtime.launch import signals_held, stop_signals_interrupt
+    from dadiff.runtime.commands.launch import signals_held, stop_signals_interrupt
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         written = []

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .datasets import Dataset
-from .datasets import Sequence as Clip
+from ..datamaking.datasets import Dataset
+from ..datamaking.datasets import Sequence as Clip
 from .evaluate import EvalError
 from .metrics import centre_errors, iou
 

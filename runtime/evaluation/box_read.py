@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..datamaking.datasets import Dataset, read_frame
 from ..errors import InputError
 from ..tracker import Tracker, check_box
-from .datasets import Dataset
-from .evaluate import EvalError, check_first_box, read_frame
+from .evaluate import EvalError, check_first_box
 
 
 @dataclass(frozen=True)
@@ -48,8 +48,7 @@ def marks_a_target(box: np.ndarray) -> bool:
 
 def in_frame(box: np.ndarray, width: int, height: int) -> bool:
     """Whether a later true box names a target in this frame, as the tracker checks a box it is given
-    (`check_box`). Others are skipped and counted: one such box used to stop the whole run with the
-    tracker's 'init box ... lies outside the frame'."""
+    (`check_box`). Others are skipped and counted: one such box never stops the whole run."""
     if not marks_a_target(box):
         return False
     try:

@@ -28,11 +28,10 @@ import numpy as np
 from tqdm import tqdm
 
 from ..crop import protocol_box
+from ..datamaking.datasets import Dataset, DatasetError, load_dataset, plural, read_boxes, read_frame
 from ..errors import DadiffError, InputError
 from ..files import write_atomic
-from ..sources import read_image
 from ..user_files import read_user_text
-from .datasets import Dataset, DatasetError, load_dataset, plural, read_boxes
 from .metrics import Scores, SequenceCurves, summarise
 
 Box = tuple[float, float, float, float]
@@ -259,7 +258,7 @@ def _number(value: float) -> str:
 def read_states(dataset: Dataset, folder: Path) -> dict[str, list[str]] | None:
     """The state of every frame of every sequence in `folder`, or None where any `.states` file is missing
     (runs from before they were written, other tools' results). Every file that is there is checked line by
-    line first (`bogus`, `x` or `,` used to pass and count as a flagged frame)."""
+    line first (`bogus`, `x` or `,` is an error, never a flagged frame)."""
     present = {}
     for seq in dataset.sequences:
         path = Path(folder) / f"{seq.name}{STATES}"
@@ -355,8 +354,8 @@ def run_record_differences(old: dict, new: dict) -> list[str]:
 def claim_folder(folder: Path, record: dict) -> str | None:
     """Check `record` (what this run would track with) against the one in `folder`, before tracking.
 
-    Other settings: EvalError naming each setting that differs (a resumed run used to skip every finished
-    sequence and report the old setting's scores as the new one's). No folder yet, or one without results
+    Other settings: EvalError naming each setting that differs (a run never resumes into results of another
+    setting, whose scores it would report as its own). No folder yet, or one without results
     (a run that failed before its first sequence left only its record): the record is written. Results without
     a record (older versions): a warning to print, nothing written, since they may come from other settings.
     """
@@ -401,15 +400,6 @@ class RunReport:
     @property
     def fps(self) -> float | None:
         return self.frames / self.seconds if self.seconds > 0 else None
-
-
-def read_frame(path: Path) -> np.ndarray:
-    """A frame to track; a file that is not there says so ("cannot read image" sent people looking for a
-    damaged file)."""
-    image = read_image(path)  # libjpeg's own warnings on a damaged frame stay off stderr
-    if image is None:
-        raise EvalError(f"{path}: {'cannot read image' if Path(path).is_file() else 'not found'}")
-    return image
 
 
 def check_first_box(name: str, box: np.ndarray) -> None:
@@ -556,7 +546,7 @@ def result_folders(paths: Iterable[Path], dataset: Dataset) -> list[tuple[str, P
 def generated_night_set(root: Path, sequences: int, frames: int, seed: int, workers: int | None = None) -> Dataset:
     """The night half of a generated benchmark (test photos) written to `root`, as `dadiff-eval generate`
     writes it; frames are read from disk while tracking, so scoring many sequences keeps memory flat."""
-    from .scenes import write_benchmark  # the generator pulls in scikit-image's photos: only when asked
+    from ..datamaking.scenes import write_benchmark  # the generator pulls in scikit-image's photos: only when asked
 
     write_benchmark(root, sequences, frames, seed, "test", workers=workers or min(sequences, os.cpu_count() or 1))
     return load_dataset(root).select(["*_night"])

@@ -19,55 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..datamaking.geometry import as_boxes, iou, paired_boxes
+
 SUCCESS_THRESHOLDS = np.arange(0, 1.05, 0.05)  # 21 IoU thresholds, strict >
 PRECISION_THRESHOLDS = np.arange(0, 51, 1)  # centre error in pixels, <=
 NORM_THRESHOLDS = np.arange(0, 51, 1) / 100  # centre error in GT sizes, <=
 PRECISION_INDEX = 20  # 20 px, and 0.20 for the toolkit's normalised precision
 
 _NORM_EPS = 1e-16  # the toolkit's guard against a zero GT size
-
-
-def as_boxes(boxes: object, what: str = "boxes") -> np.ndarray:
-    """(N, 4) float64 array of (x, y, w, h) rows; raises ValueError naming `what` otherwise."""
-    array = np.asarray(boxes, dtype=np.float64)
-    if array.ndim == 1 and array.size == 0:
-        array = array.reshape(0, 4)
-    if array.ndim != 2 or array.shape[1] != 4:
-        raise ValueError(f"{what} must be an (N, 4) array of x, y, w, h rows, got shape {array.shape}")
-    return array
-
-
-def _pair(gt: object, pred: object) -> tuple[np.ndarray, np.ndarray]:
-    g, p = as_boxes(gt, "ground truth"), as_boxes(pred, "prediction")
-    if len(g) != len(p):
-        raise ValueError(f"prediction has {len(p)} boxes, ground truth has {len(g)}")
-    if len(g) == 0:
-        raise ValueError("a sequence needs at least one frame")
-    return g, p
-
-
-def iou(gt: object, pred: object) -> np.ndarray:
-    """Per-frame IoU of boxes spanning [x, x+w] x [y, y+h], clipped to [0, 1]; -1 where the GT is invalid."""
-    g, p = _pair(gt, pred)
-    out = np.full(len(g), -1.0)
-    with np.errstate(invalid="ignore"):
-        valid = np.sum(g[:, 2:] > 0, axis=1) == 2
-    g, p = g[valid], p[valid]
-    # over: a finite but huge box (1e308) overflows to inf, giving IoU 0 or NaN (a failure) as it should
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        left = np.maximum(g[:, 0], p[:, 0])
-        right = np.minimum(g[:, 0] + g[:, 2], p[:, 0] + p[:, 2])
-        top = np.maximum(g[:, 1], p[:, 1])
-        bottom = np.minimum(g[:, 1] + g[:, 3], p[:, 1] + p[:, 3])
-        inter = np.maximum(0, right - left) * np.maximum(0, bottom - top)
-        union = g[:, 2] * g[:, 3] + p[:, 2] * p[:, 3] - inter
-        out[valid] = np.maximum(np.minimum(1, inter / union), 0)
-    return out
-
-
-def iou_with_each(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """IoU of one box (x, y, w, h) with each row of `boxes`: the benchmark's own IoU, one box against many."""
-    return iou(np.broadcast_to(box, boxes.shape), boxes)
 
 
 def centres(boxes: object) -> np.ndarray:
@@ -88,13 +47,13 @@ def _distances(gt_c: np.ndarray, pred_c: np.ndarray) -> np.ndarray:
 
 def centre_errors(gt: object, pred: object) -> np.ndarray:
     """Per-frame centre distance in pixels; -1 (a hit) where a GT centre coordinate is <= 0 or NaN."""
-    g, p = _pair(gt, pred)
+    g, p = paired_boxes(gt, pred)
     return _distances(centres(g), centres(p))
 
 
 def norm_centre_errors(gt: object, pred: object) -> np.ndarray:
     """Centre distance after dividing both centres by the GT (w, h) (+1e-16); -1 as in `centre_errors`."""
-    g, p = _pair(gt, pred)
+    g, p = paired_boxes(gt, pred)
     size = g[:, 2:] + _NORM_EPS
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         return _distances(centres(g) / size, centres(p) / size)
@@ -135,7 +94,7 @@ class SequenceCurves:
 
     @classmethod
     def from_boxes(cls, gt: object, pred: object) -> SequenceCurves:
-        g, p = _pair(gt, pred)
+        g, p = paired_boxes(gt, pred)
         return cls(success_curve(g, p), precision_curve(g, p), norm_precision_curve(g, p))
 
 

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datamaking.datasets import load_dataset
 from ..errors import InputError
-from .datasets import load_dataset
 from .evaluate import TrackerScores, result_folders, score_folder
 from .metrics import PairedDifference, paired_difference
 

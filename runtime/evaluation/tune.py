@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ..config import TUNABLE_KEYS
+from ..datamaking.datasets import Dataset, read_frame
 from ..errors import InputError
-from .datasets import Dataset
-from .evaluate import BoxTracker, check_first_box, protocol_box, read_frame
+from .evaluate import BoxTracker, check_first_box, protocol_box
 from .metrics import Scores, SequenceCurves, summarise
 
 # what a search varies when the user names no grid: the released keys around their usual ranges

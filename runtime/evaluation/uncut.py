@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datamaking.datasets import Dataset, DatasetError, read_boxes, read_text
+from ..datamaking.fixed_camera import check_new_folder, night_sequence, read_video
+from ..datamaking.scene_error import SceneError
+from ..datamaking.scenes import write_frame
 from .anatomy import centred_frames, known_frames
-from .datasets import Dataset, DatasetError, read_boxes, read_text
 from .evaluate import EvalError, read_results, read_states
-from .fixed_camera import check_new_folder, night_sequence, read_video
 from .metrics import PRECISION_INDEX, SequenceCurves
-from .scene_error import SceneError
-from .scenes import write_frame
 
 ABSENCE = "absence.label"  # one 0/1 line per frame: 1 where the target is out of view (GOT-10k's file name)
 CLIPS = "clips.json"

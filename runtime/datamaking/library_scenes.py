@@ -1,4 +1,4 @@
-"""Scenes over the real-photo library (runtime/evaluation/library.py, fetched by `dadiff-eval data fetch`).
+"""Scenes over the real-photo library (runtime/datamaking/library.py, fetched by `dadiff-eval data fetch`).
 
 A drone camera hovers over an aerial texture or photo, drifting, turning and climbing (on request knocked by a
 gust: the whole picture jumps 20-40 px a frame and drifts back); the target is a real

@@ -15,16 +15,16 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from .argtypes import non_negative_int, positive_int
-from .config import TUNABLE_KEYS
-from .cpu import int8_warning
-from .crop import protocol_box
-from .errors import DadiffError, InputError, os_error_line
+from ..argtypes import non_negative_int, positive_int
+from ..config import TUNABLE_KEYS
+from ..cpu import warn_int8
+from ..crop import protocol_box
+from ..errors import DadiffError, InputError, os_error_line
+from ..outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
+from ..runstats import RunStats
+from ..sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
+from ..tracker import Tracker
 from .launch import signals_held, stop_signals_interrupt
-from .outputs import OutputError, Record, Sink, TrackLog, VideoSink, check_distinct
-from .runstats import RunStats
-from .sources import FolderSource, Frame, SourceError, VideoSource, open_source, parse_box, quiet_opencv
-from .tracker import Tracker
 
 PROG = "dadiff-run"
 STATUS_EVERY_S = 5.0
@@ -137,12 +137,12 @@ DEMO_IGNORES = ("video", "init", "output", "save_video", "preset", "hp", "thread
 
 def _demo(args: argparse.Namespace) -> int:
     given = [f"--{k.replace('_', '-')}" for k in DEMO_IGNORES if getattr(args, k, None) not in (None, {}, [])]
-    if given:  # they were accepted and silently not applied
+    if given:  # an option the demo would not apply is an error, never ignored
         raise InputError(f"--demo runs the default setup on a generated sequence; {', '.join(given)} "
                          "do not apply to it (use --model, --seed, --demo-out)")
     if args.demo_out.exists() and not args.demo_out.is_dir():
         raise OutputError(f"{args.demo_out}: --demo-out exists and is not a folder")
-    from .evaluation.demo import run_demo  # the generator needs scikit-image's photos: loaded only here
+    from .demo import run_demo  # the generator needs scikit-image's photos: loaded only here
 
     run_demo(args.model, args.demo_out, seed=args.seed)
     return 0
@@ -173,7 +173,7 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
     tracker = Tracker.load(
         args.model, provider=args.provider, threads=args.threads, preset=args.preset, overrides=args.hp
     )
-    warn_int8(tracker)
+    warn_int8(PROG, tracker)
     source = open_source(args.video)
     sinks: list[Sink] = []
     failed: OutputError | None = None
@@ -203,13 +203,6 @@ def _track(args: argparse.Namespace, stats: RunStats) -> bool:
         finally:
             source.close()
             _warn_missing(source)
-
-
-def warn_int8(tracker: Tracker) -> None:
-    """One warning line when an int8 model runs where onnxruntime's int8 kernels saturate (runtime/cpu.py)."""
-    warning = int8_warning(getattr(tracker.backend, "meta", None))
-    if warning:
-        print(f"{PROG}: warning: {warning}", file=sys.stderr)
 
 
 def _warn_missing(source: VideoSource | FolderSource) -> None:

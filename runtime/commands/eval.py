@@ -35,15 +35,32 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..argtypes import add_renamed, float_in, non_negative_int, positive_int
-from ..cli import hp_arg
+from ..datamaking.datasets import Dataset, load_dataset, plural
+from ..datamaking.detection_tracks import LinkSettings, write_detection_benchmark
+from ..datamaking.detector import Detector, detect_video, write_det_txt
+from ..datamaking.fixed_camera import NIGHT_MODELS, LabelSettings, read_video, write_fixed_camera_benchmark
+from ..datamaking.hit_uav import CLASSES as HIT_CLASSES
+from ..datamaking.hit_uav import SPLITS as HIT_SPLITS
+from ..datamaking.hit_uav import ChainSettings, write_hit_uav_benchmark
+from ..datamaking.hit_uav import default_data_dir as default_hit_uav_dir
+from ..datamaking.library import (
+    DEFAULT_PACKAGES,
+    ROLES,
+    SPLITS,
+    Library,
+    LibraryError,
+    fetch,
+    library_root,
+    open_library,
+)
+from ..datamaking.night import NIGHT_STYLES
+from ..datamaking.night_sets import format_statistics, write_camera_nights
+from ..datamaking.photos import PHOTO_SPLITS
+from ..datamaking.scene import MAX_SIDE, frame_size
+from ..datamaking.scenes import SOURCES, SceneError, write_benchmark
 from ..errors import DadiffError, InputError, ModelError, OneLineParser, os_error_line
-from ..outputs import inside_folder, same_file
-from ..sources import quiet_opencv
-from .anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
-from .datasets import Dataset, load_dataset, plural
-from .detection_tracks import LinkSettings, write_detection_benchmark
-from .detector import Detector, detect_video, write_det_txt
-from .evaluate import (
+from ..evaluation.anatomy import anatomy, check_frames, format_anatomy, format_honesty, grey_bins, honesty
+from ..evaluation.evaluate import (
     NANO_ENV,
     EvalError,
     GammaTracker,
@@ -60,20 +77,12 @@ from .evaluate import (
     score_folder,
     tracker_folder,
 )
-from .fixed_camera import NIGHT_MODELS, LabelSettings, read_video, write_fixed_camera_benchmark
-from .hit_uav import CLASSES as HIT_CLASSES
-from .hit_uav import SPLITS as HIT_SPLITS
-from .hit_uav import ChainSettings, write_hit_uav_benchmark
-from .hit_uav import default_data_dir as default_hit_uav_dir
-from .library import DEFAULT_PACKAGES, ROLES, SPLITS, Library, LibraryError, fetch, library_root, open_library
-from .metrics import Scores, paired_difference
-from .night import NIGHT_STYLES
-from .night_sets import format_statistics, write_camera_nights
-from .photos import PHOTO_SPLITS
-from .plots import write_plots
-from .scene import MAX_SIDE, frame_size
-from .scenes import SOURCES, SceneError, write_benchmark
-from .table import TableSet, markdown_table, score_set
+from ..evaluation.metrics import Scores, paired_difference
+from ..evaluation.plots import write_plots
+from ..evaluation.table import TableSet, markdown_table, score_set
+from ..outputs import inside_folder, same_file
+from ..sources import quiet_opencv
+from .run import hp_arg
 
 PROG = "dadiff-eval"
 NOTE = (
@@ -84,7 +93,7 @@ NOTE = (
 
 MAX_SHIFT = 255.0  # box-read --shifts, crop px: the largest shipped search crop's side; 1e308 overflowed crop.py
 MAX_GAMMA = 10.0  # run --gamma: above it every frame is black but its brightest pixels
-MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; nan and inf used to raise ValueError / OverflowError
+MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; finite and bounded, so nan and inf are one-line errors
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -93,7 +102,7 @@ def _size(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x360, got '{text}'") from None
     try:
-        return frame_size((w, h), 1)  # bounded at parse time: 100000x100000 used to be an OpenCV allocation traceback
+        return frame_size((w, h), 1)  # bounded at parse time, before OpenCV is asked to allocate the frame
     except SceneError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -420,8 +429,8 @@ def _pick(item: TrackerScores, attribute: str | None):
 
 
 def attribute_names(dataset: Dataset, wanted: bool, label: str) -> list[str]:
-    """The attributes to report under --attributes; a note on stderr when there are none (the option used to
-    print nothing more, silently, which read as if the dataset's attributes had been lost)."""
+    """The attributes to report under --attributes; a note on stderr when there are none (an option that
+    changes nothing says why)."""
     if not wanted:
         return []
     names = dataset.attributes()
@@ -437,7 +446,7 @@ def _scores_json(s: Scores) -> dict[str, float]:
 
 def scores_table(dataset: Dataset, scores: Sequence[TrackerScores], names: list[str]) -> dict:
     """`score --json`'s document: overall scores per tracker, and per attribute when `names` are given
-    (--attributes used to be left out of the JSON silently)."""
+    (--attributes reaches the JSON as it reaches the table)."""
     table = {}
     for item in scores:
         entry: dict = _scores_json(item.overall)
@@ -475,7 +484,7 @@ def report(
 
 def check_output(option: str, path: Path | None, inputs: Sequence[Path]) -> None:
     """InputError when an output would land on an input file or inside an input folder, before any work:
-    `tune --output ds/a/groundtruth_rect.txt` used to replace the ground truth with a trials table."""
+    no command writes over what it reads (`tune --output ds/a/groundtruth_rect.txt` is refused)."""
     if path is None:
         return
     for source in inputs:
@@ -489,7 +498,7 @@ def check_output(option: str, path: Path | None, inputs: Sequence[Path]) -> None
 
 def _check_results(results: Path, dataset: str, name: str) -> None:
     """`run --output` and the folders under it must be folders where they exist: checked before tracking,
-    which used to run to the end and then fail with 'Not a directory'."""
+    so that a bad output path fails at once, not after the run."""
     for path in (results, results / dataset, tracker_folder(results, dataset, name)):
         if path.exists() and not path.is_dir():
             raise InputError(f"{path}: is a file, not a folder; --output needs a folder here (nothing tracked)")
@@ -594,7 +603,7 @@ def format_differences(scores: Sequence[TrackerScores], against: str) -> str:
     base = next((s for s in scores if s.name == against), None)
     if base is None:
         raise InputError(f"--against {against}: no such tracker among {', '.join(s.name for s in scores)}")
-    if len(scores) == 1:  # the heading alone used to be printed, with nothing under it
+    if len(scores) == 1:  # a table needs a row to compare: say so rather than print a bare heading
         return f"--against {against}: nothing to compare ({against} is the only tracker given)"
     names = list(base.sequences)
     lines = [f"success minus {against} (per-sequence bootstrap, 95% interval):"]
@@ -686,14 +695,14 @@ def _cutout_library(args: argparse.Namespace):
         return None
     if args.source != "library":
         raise SceneError("--cutouts needs --source library (the cut-outs are pasted over its backgrounds)")
-    from .cutouts import CutoutTargets
-    from .library_scenes import open_scene_library
+    from ..datamaking.cutouts import CutoutTargets
+    from ..datamaking.library_scenes import open_scene_library
 
     return CutoutTargets(open_scene_library(), args.cutouts)
 
 
 def cmd_cutouts(args: argparse.Namespace) -> int:
-    from .cutouts import CutSettings, write_cutouts
+    from ..datamaking.cutouts import CutSettings, write_cutouts
 
     if not args.min_height > 0:
         raise SceneError(f"--min-height {args.min_height} must be above 0 (px)")
@@ -731,7 +740,7 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 
 def cmd_uncut(args: argparse.Namespace) -> int:
-    from .uncut import write_uncut_clips
+    from ..evaluation.uncut import write_uncut_clips
 
     start = time.perf_counter()
     frames = write_uncut_clips(args.video, args.truth, args.output, args.night_seed)
@@ -742,7 +751,7 @@ def cmd_uncut(args: argparse.Namespace) -> int:
 
 
 def cmd_uncut_score(args: argparse.Namespace) -> int:
-    from .uncut import format_uncut, uncut_scores
+    from ..evaluation.uncut import format_uncut, uncut_scores
 
     dataset = load_dataset(args.dataset).select(args.sequences)
     rows = {name: uncut_scores(dataset, folder) for name, folder in result_folders(args.dirs, dataset)}
@@ -782,7 +791,7 @@ def _short_licence(licence: str, most: int = 5) -> str:
 
 
 def _pack(cache: Path, args: argparse.Namespace) -> int:
-    from .library_pack import pack_library
+    from ..datamaking.library_pack import pack_library
 
     library = open_library(cache)
     if library is None:
@@ -847,8 +856,8 @@ def cmd_hit_uav(args: argparse.Namespace) -> int:
 
 
 def cmd_box_read(args: argparse.Namespace) -> int:
+    from ..evaluation.box_read import box_read, format_box_read
     from ..tracker import Tracker
-    from .box_read import box_read, format_box_read
 
     tracker = Tracker.load(args.model, threads=args.threads)
     stride = tracker.geometry.stride
@@ -863,8 +872,7 @@ def cmd_box_read(args: argparse.Namespace) -> int:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    from ..tracker import Tracker
-    from .tune import (
+    from ..evaluation.tune import (
         DEFAULT_GRID,
         best_trial,
         check_trials_out,
@@ -874,6 +882,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         track_sequences,
         write_trials,
     )
+    from ..tracker import Tracker
 
     grid = parse_grid(args.grid) or DEFAULT_GRID
     if args.output:  # written after minutes of tuning: checked first

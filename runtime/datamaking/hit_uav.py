@@ -29,7 +29,7 @@ from ..files import write_atomic
 from ..sources import read_image
 from .datasets import read_text
 from .fixed_camera import check_new_folder
-from .metrics import iou_with_each
+from .geometry import iou_with_each
 from .scene_error import SceneError
 from .scenes import write_boxes
 
@@ -280,7 +280,7 @@ def write_hit_uav_benchmark(root: str | Path, out: str | Path, split: str = "tes
                         "images": [stills[p].name for p in chain.stills],
                         "annotation_ids": [stills[p].ids[r] for p, r in zip(chain.stills, chain.boxes, strict=True)]})
     write_atomic(out / "attributes.json", json.dumps(attributes, indent=1) + "\n")
-    info = {"generator": "dadiff.runtime.evaluation.hit_uav", "source": "HIT-UAV night images", "data": str(root),
+    info = {"generator": "dadiff.runtime.datamaking.hit_uav", "source": "HIT-UAV night images", "data": str(root),
             "split": split, "licence": LICENCE, "attribution": CITATION, "settings": asdict(settings),
             "stills": len(stills), "sequences": records, "pairs": pairs}
     write_atomic(out / "benchmark.json", json.dumps(info, indent=1) + "\n")

@@ -2,7 +2,7 @@
 
 The stages follow a frame through the onboard pipeline: video decode, search crop, the ONNX search call,
 box decoding and state (post), and packing the MAVLink CAMERA_TRACKING_IMAGE_STATUS (275) the drone sends;
-the template branch runs once per target and is timed per init. The video is generated (runtime/evaluation/scenes.py,
+the template branch runs once per target and is timed per init. The video is generated (runtime/datamaking/scenes.py,
 test photos), written with the codec dadiff-run reads, and looped with a re-init for long runs.
 """
 
@@ -18,11 +18,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .backend import RecordingBackend
-from .evaluation.evaluate import BoxTracker, protocol_box
-from .evaluation.scenes import make_sequence
-from .outputs import open_mp4
-from .tracker import Tracker, TrackResult
+from ..backend import RecordingBackend
+from ..datamaking.scenes import make_sequence
+from ..evaluation.evaluate import BoxTracker, protocol_box
+from ..outputs import open_mp4
+from ..tracker import Tracker, TrackResult
 
 STAGES = ("decode", "motion", "crop", "search", "post", "encode", "tracker", "frame")
 RSS_EVERY = 500  # frames between resident-memory samples

@@ -159,7 +159,7 @@ def open_library(root: Path | None = None) -> Library | None:
 
 
 def _check_index(data: object) -> None:
-    """The index's shape, naming the first bad key: `{"packages": []}` used to raise AttributeError."""
+    """The index's shape, naming the first bad key (`{"packages": []}` is a LibraryError, not a traceback)."""
     def need(ok: bool, key: str, what: str) -> None:
         if not ok:
             raise ValueError(f"key {key} must be {what}")

@@ -12,11 +12,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..datamaking.scenes import make_sequence
+from ..evaluation.evaluate import protocol_box
+from ..evaluation.metrics import SequenceCurves, summarise
 from ..outputs import Record, draw_overlay, open_mp4
 from ..tracker import Tracker
-from .evaluate import protocol_box
-from .metrics import SequenceCurves, summarise
-from .scenes import make_sequence
 
 _GT_COLOUR = (255, 255, 255)
 

@@ -1,11 +1,11 @@
 """The console entry points of every dadiff command: signals are handled from the first instruction on.
 
 Each command's module imports heavy libraries (OpenCV, onnxruntime, torch: seconds on a small computer)
-before its `main` runs; a Ctrl-C in that time used to end in a KeyboardInterrupt traceback and exit -2, and
-SIGTERM or SIGHUP (an SSH session dropping) killed the process at once, leaving an MP4 without its index.
-Here SIGTERM and SIGHUP stop a command as Ctrl-C does (KeyboardInterrupt: every output is closed whole on
-the way out), and an interruption before `main` has taken over is one line and exit 130. Only the standard
-library is imported here, and each command's module only after the handlers are in place.
+before its `main` runs. The rule: a stop signal at any time ends a command with one line and exit 130, never a
+traceback, and every output is closed whole (an MP4 keeps its index). So SIGTERM and SIGHUP (an SSH session
+dropping) stop a command as Ctrl-C does (KeyboardInterrupt: outputs are closed on the way out), and an
+interruption before `main` has taken over is one line and exit 130. Only the standard library is imported
+here, and each command's module only after the handlers are in place.
 """
 
 from __future__ import annotations
@@ -50,9 +50,9 @@ def stop_signals_interrupt() -> Iterator[None]:
 @contextmanager
 def signals_held() -> Iterator[None]:
     """A stop signal (Ctrl-C, SIGTERM, SIGHUP) that arrives inside the block acts when it ends: one frame's
-    record then reaches every output or none (an interrupt between the CSV row and the video frame left the
-    two a frame apart). The handlers are swapped, not the signal mask: onnxruntime's and OpenCV's threads
-    would take a masked signal for the process. Outside the main thread nothing changes."""
+    record then reaches every output or none (the CSV log and the video never end a frame apart). The
+    handlers are swapped, not the signal mask: onnxruntime's and OpenCV's threads would take a masked signal
+    for the process. Outside the main thread nothing changes."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -84,15 +84,15 @@ def launch(prog: str, module: str) -> NoReturn:
 
 
 def dadiff_run() -> NoReturn:
-    launch("dadiff-run", "dadiff.runtime.cli")
+    launch("dadiff-run", "dadiff.runtime.commands.run")
 
 
 def dadiff_eval() -> NoReturn:
-    launch("dadiff-eval", "dadiff.runtime.evaluation.cli")
+    launch("dadiff-eval", "dadiff.runtime.commands.eval")
 
 
 def dadiff_bench() -> NoReturn:
-    launch("dadiff-bench", "dadiff.runtime.bench_cli")
+    launch("dadiff-bench", "dadiff.runtime.commands.bench")
 
 
 def dadiff_export() -> NoReturn:

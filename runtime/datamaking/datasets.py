@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DadiffError
-from ..sources import image_dir, image_files
+from ..sources import image_dir, image_files, read_image
 from ..user_files import read_user_text
 from .scene_error import SceneError
 
@@ -182,9 +182,9 @@ def warn(message: str, default_prog: str = "dadiff-eval") -> None:
 def _make_sequence(name: str, frames: tuple[Path, ...], boxes: np.ndarray) -> Sequence | LeftOut:
     """One box line per frame, or a LeftOut saying why not and how to fix it.
 
-    Trimming the longer side (what a warning used to announce) paired boxes with the wrong frames: OTB labels
-    some sequences from a later frame (David from frame 300), and a missing frame shifts every later box.
-    Left out, not refused: one such sequence (OTB100 has five) used to block the whole dataset."""
+    A count mismatch is never trimmed to fit: trimming pairs boxes with the wrong frames (OTB labels some
+    sequences from a later frame, David from frame 300; a missing frame shifts every later box). The sequence
+    is left out with the reason, not the dataset refused (OTB100 has five such sequences)."""
     if len(frames) == len(boxes):
         return Sequence(name, frames, boxes)
     counts = f"{plural(len(boxes), 'box', 'boxes')} for {plural(len(frames), 'frame')}"
@@ -321,7 +321,7 @@ def _got10k(path: Path) -> list[Sequence | LeftOut]:
 
 def _attribute_list(value: object, file: Path, name: str, kinds: tuple[type, ...] = (str,)) -> tuple[str, ...]:
     """A sequence's attributes as a list of names (of `kinds`: pysot's attr may hold 0/1 flags as numbers);
-    a string ("SV") used to be split into the attributes S and V."""
+    a string ("SV") is refused, never split into the attributes S and V."""
     if not isinstance(value, list) or not all(isinstance(a, kinds) and not isinstance(a, bool) for a in value):
         raise DatasetError(f"{file}: sequence {name!r}: expected a list of attribute names such as "
                            f'["SV", "OCC"], got {json.dumps(value)[:60]}')
@@ -333,7 +333,7 @@ def _json(file: Path) -> list[Sequence | LeftOut]:
         meta = json.loads(read_text(file))
     except ValueError as exc:
         raise DatasetError(f"{file}: not a readable pysot-toolkit JSON file ({exc})") from None
-    except RecursionError:  # json's decoder recurses per level: '[' * 100000 was a traceback
+    except RecursionError:  # json's decoder recurses per level: a deep nesting is bad input, one line
         raise DatasetError(f"{file}: not a pysot-toolkit JSON file (nested too deeply)") from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{file}: expected a JSON object {{sequence: {{img_names, gt_rect, ...}}}}")
@@ -342,7 +342,7 @@ def _json(file: Path) -> list[Sequence | LeftOut]:
         if not isinstance(entry, dict) or "img_names" not in entry or "gt_rect" not in entry:
             raise DatasetError(f"{file}: sequence {name!r} lacks img_names or gt_rect")
         frames = tuple(root / str(n) for n in entry["img_names"])
-        # every frame before any tracking: a later missing one used to stop the run as "cannot read image"
+        # every frame is checked before any tracking, so a missing one is named at load time, not mid-run
         missing = next((k for k, f in enumerate(frames) if not f.is_file()), None)
         if missing is not None:
             which = "first frame" if missing == 0 else f"frame {missing + 1}"
@@ -435,3 +435,12 @@ def load_dataset(path: str | Path) -> Dataset:
         raise DatasetError(f"{path}: no sequences found ({layout} layout)")
     return Dataset(name=name, path=path, layout="official" if layout == "nested" else layout,
                    sequences=tuple(sequences))
+
+
+def read_frame(path: Path) -> np.ndarray:
+    """A frame to track; the error tells a missing file ('not found') from a damaged one ('cannot read
+    image')."""
+    image = read_image(path)  # libjpeg's own warnings on a damaged frame stay off stderr
+    if image is None:
+        raise DatasetError(f"{path}: {'cannot read image' if Path(path).is_file() else 'not found'}")
+    return image

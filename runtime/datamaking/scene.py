@@ -260,8 +260,8 @@ class Scene:
 
 
 def frame_size(size: tuple[int, int], frames: int) -> tuple[int, int]:
-    """(width, height) of a scene's frames as ints; SceneError when the size is outside 64..MAX_SIDE a side (a
-    huge one was an OpenCV allocation traceback) or the frame count is below 1."""
+    """(width, height) of a scene's frames as ints; SceneError when the size is outside 64..MAX_SIDE a side (checked
+    before OpenCV is asked to allocate the frame) or the frame count is below 1."""
     width, height = (int(v) for v in size)
     if width < 64 or height < 64:
         raise SceneError(f"frame size must be at least 64 x 64, got {width} x {height}")

@@ -30,22 +30,11 @@ from tqdm import tqdm
 
 from dadiff.models import ModelNotFoundError, resolve
 
-from .argtypes import add_renamed, int_in, non_negative_int, positive_int
-from .bench import (
-    BenchLane,
-    BenchRun,
-    NightVideo,
-    latency_ms,
-    run_lanes,
-    search_crops,
-    time_search,
-    write_night_video,
-)
-from .cli import hp_arg
-from .cpu import cpu_flags
-from .errors import DadiffError, ModelError, OneLineParser, os_error_line
-from .evaluation.datasets import Dataset
-from .evaluation.evaluate import (
+from ..argtypes import add_renamed, int_in, non_negative_int, positive_int
+from ..cpu import cpu_flags
+from ..datamaking.datasets import Dataset
+from ..errors import DadiffError, ModelError, OneLineParser, os_error_line
+from ..evaluation.evaluate import (
     NANO_ENV,
     EvalError,
     OpenCVTracker,
@@ -58,10 +47,21 @@ from .evaluation.evaluate import (
     score_tracker,
     tracker_folder,
 )
-from .instructions import CLIP, UPDATES, count_updates, valgrind_path, write_clip
-from .onnx_backend import physical_cores, thread_count
-from .sources import quiet_opencv
-from .tracker import Tracker
+from ..onnx_backend import physical_cores, thread_count
+from ..sources import quiet_opencv
+from ..tracker import Tracker
+from .bench_instructions import CLIP, UPDATES, count_updates, valgrind_path, write_clip
+from .bench_lanes import (
+    BenchLane,
+    BenchRun,
+    NightVideo,
+    latency_ms,
+    run_lanes,
+    search_crops,
+    time_search,
+    write_night_video,
+)
+from .run import hp_arg
 
 ROWS = (
     ("decode", "video decode"), ("motion", "picture motion (jolts)"), ("crop", "search crop"),
@@ -228,8 +228,8 @@ def _flags_text(flags: dict[str, bool | None]) -> str:
 
 def _use_nano(args: argparse.Namespace) -> tuple[bool, str | None]:
     """Whether to time TrackerNano, and the note to print when the timing starts if not. --nano: required (a
-    missing weight is an error naming --nano); default: when the weights are here, else a note (TrackerNano
-    used to vanish from the report without a word); --no-nano: never, no note."""
+    missing weight is an error naming --nano); default: when the weights are here, else a note (a tracker left
+    out of the report is always said so); --no-nano: never, no note."""
     if args.nano is False:
         return False, None
     if args.nano is None:
@@ -428,7 +428,7 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.checkpoint and not (args.compare_torch or args.sweep_steps):  # it was silently ignored
+    if args.checkpoint and not (args.compare_torch or args.sweep_steps):  # an option that changes nothing: an error
         print("dadiff-bench: error: --checkpoint applies to --compare-torch and --sweep-steps only", file=sys.stderr)
         return 2
     try:

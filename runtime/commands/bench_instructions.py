@@ -27,7 +27,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import DadiffError
+from ..errors import DadiffError
 
 CLIP = 48  # frames every worker run loads, whatever its update count
 UPDATES = (4, 36)  # the two update counts whose difference is counted
@@ -75,7 +75,7 @@ def write_clip(video: Path, path: Path) -> Path:
     """The first CLIP frames of `video` as one uint8 array in `path` (.npy), what the counted program loads."""
     import numpy as np
 
-    from .frames import decode_video
+    from ..frames import decode_video
 
     frames = decode_video(str(video), CLIP)
     if len(frames) < 2:
@@ -85,7 +85,7 @@ def write_clip(video: Path, path: Path) -> Path:
 
 
 def _worker_command(kind: str, target: str, clip: Path, box: tuple[float, ...], updates: int) -> list[str]:
-    return [sys.executable, "-m", "dadiff.runtime.instructions", kind, target, str(clip),
+    return [sys.executable, "-m", "dadiff.runtime.commands.bench_instructions", kind, target, str(clip),
             ",".join(f"{v:g}" for v in box), str(updates)]
 
 
@@ -120,10 +120,10 @@ def _load_tracker(kind: str, target: str):
 
     cv2.setNumThreads(1)
     if kind == "nano":
-        from .evaluation.evaluate import OpenCVTracker
+        from ..evaluation.evaluate import OpenCVTracker
 
         return OpenCVTracker("nano", nano_dir=Path(target))
-    from .tracker import Tracker
+    from ..tracker import Tracker
 
     return Tracker.load(target, threads=1)
 
@@ -132,7 +132,7 @@ def _work(argv: list[str]) -> None:
     """The counted program: load the clip, init on its first frame, run `updates` updates."""
     import numpy as np
 
-    p = argparse.ArgumentParser(prog="python -m dadiff.runtime.instructions")
+    p = argparse.ArgumentParser(prog="python -m dadiff.runtime.commands.bench_instructions")
     p.add_argument("kind", choices=("model", "nano"))
     p.add_argument("target")
     p.add_argument("clip", help="frames as one .npy array (write_clip)")

@@ -1,5 +1,7 @@
-"""Plane geometry of the generated scenes: object outlines, polygon area and clipping, and the exact box of
-what an outline shows behind a convex occluder (computed from the geometry, not from pixels)."""
+"""Plane geometry of the generated scenes: object outlines, polygon area and clipping, the exact box of what
+an outline shows behind a convex occluder (computed from the geometry, not from pixels), and the overlap (IoU)
+of boxes: the benchmark's own definition, which the labellers (fixed camera, detection tracks, HIT-UAV) link
+boxes by and the metrics score by."""
 
 from __future__ import annotations
 
@@ -120,3 +122,47 @@ def visible_box(target: np.ndarray, occluder: np.ndarray | None, width: int, hei
 
 def hidden_fraction(target: np.ndarray, occluder: np.ndarray) -> float:
     return polygon_area(_clip_convex(target, occluder)) / max(polygon_area(target), 1e-9)
+
+
+def as_boxes(boxes: object, what: str = "boxes") -> np.ndarray:
+    """(N, 4) float64 array of (x, y, w, h) rows; raises ValueError naming `what` otherwise."""
+    array = np.asarray(boxes, dtype=np.float64)
+    if array.ndim == 1 and array.size == 0:
+        array = array.reshape(0, 4)
+    if array.ndim != 2 or array.shape[1] != 4:
+        raise ValueError(f"{what} must be an (N, 4) array of x, y, w, h rows, got shape {array.shape}")
+    return array
+
+
+def paired_boxes(gt: object, pred: object) -> tuple[np.ndarray, np.ndarray]:
+    """Ground truth and prediction as (N, 4) arrays of one length N > 0; ValueError naming the mismatch."""
+    g, p = as_boxes(gt, "ground truth"), as_boxes(pred, "prediction")
+    if len(g) != len(p):
+        raise ValueError(f"prediction has {len(p)} boxes, ground truth has {len(g)}")
+    if len(g) == 0:
+        raise ValueError("a sequence needs at least one frame")
+    return g, p
+
+
+def iou(gt: object, pred: object) -> np.ndarray:
+    """Per-frame IoU of boxes spanning [x, x+w] x [y, y+h], clipped to [0, 1]; -1 where the GT is invalid."""
+    g, p = paired_boxes(gt, pred)
+    out = np.full(len(g), -1.0)
+    with np.errstate(invalid="ignore"):
+        valid = np.sum(g[:, 2:] > 0, axis=1) == 2
+    g, p = g[valid], p[valid]
+    # over: a finite but huge box (1e308) overflows to inf, giving IoU 0 or NaN (a failure) as it should
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        left = np.maximum(g[:, 0], p[:, 0])
+        right = np.minimum(g[:, 0] + g[:, 2], p[:, 0] + p[:, 2])
+        top = np.maximum(g[:, 1], p[:, 1])
+        bottom = np.minimum(g[:, 1] + g[:, 3], p[:, 1] + p[:, 3])
+        inter = np.maximum(0, right - left) * np.maximum(0, bottom - top)
+        union = g[:, 2] * g[:, 3] + p[:, 2] * p[:, 3] - inter
+        out[valid] = np.maximum(np.minimum(1, inter / union), 0)
+    return out
+
+
+def iou_with_each(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """IoU of one box (x, y, w, h) with each row of `boxes`: the benchmark's own IoU, one box against many."""
+    return iou(np.broadcast_to(box, boxes.shape), boxes)

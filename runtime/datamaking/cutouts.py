@@ -25,8 +25,7 @@ import cv2
 import numpy as np
 
 from ..user_files import read_user_text
-from .datasets import Dataset
-from .evaluate import read_frame
+from .datasets import Dataset, read_frame
 from .library import LibraryError, LibraryImage, split_of
 
 FORMAT = 1

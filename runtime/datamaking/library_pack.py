@@ -69,7 +69,7 @@ def pack_library(library: Library, out: Path, max_bytes: int, splits: tuple[str,
     if max_bytes <= 0:
         raise LibraryError(f"the pack budget must be positive, got {max_bytes} bytes")
     order = _interleaved(library, splits)
-    if not order:  # an exit-0 'packed  into ... (0.0 MiB)' used to leave an empty pack
+    if not order:  # an empty pack is an error, never an exit-0 'packed ... (0.0 MiB)'
         raise LibraryError(f"{library.root}: no {' or '.join(splits)} images to pack (nothing written)")
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)

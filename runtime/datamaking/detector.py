@@ -30,7 +30,7 @@ class Detector:
         if not path.is_file():
             raise SceneError(f"{path}: no such detector file")
         options = ort.SessionOptions()
-        options.intra_op_num_threads = thread_count(threads)  # bounded as the tracker's: 100000 hung a process
+        options.intra_op_num_threads = thread_count(threads)  # bounded as the tracker's (thread_count)
         try:
             self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own types for unreadable or invalid models

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..user_files import read_user_text
 from .fixed_camera import Track, check_new_folder, read_video, video_info, write_tracks
-from .metrics import iou_with_each
+from .geometry import iou_with_each
 from .scene_error import SceneError
 
 CUT_SIZE = (80, 45)  # frames are compared at this size to find scene cuts
@@ -177,7 +177,7 @@ def write_detection_benchmark(video: str | Path, detections: str | Path, out: st
         found = sum(len(b) for b in boxes)
         raise SceneError(f"{detections}: {found} usable detections link into no track of {settings.min_frames} "
                          "frames (try a lower --min-frames or --min-score)")
-    info = {"generator": "dadiff.runtime.evaluation.detection_tracks", **video_info(video),
+    info = {"generator": "dadiff.runtime.datamaking.detection_tracks", **video_info(video),
             "detections": str(detections), "settings": asdict(settings)}
     write_tracks(frames, tracks, out, seed, info, night)
     return tracks

@@ -24,7 +24,7 @@ from ..files import write_atomic
 from ..frames import decode_video
 from ..ort_cache import file_sha256
 from .datasets import check_new_folder, list_frames
-from .metrics import iou_with_each
+from .geometry import iou_with_each
 from .night import NightLights, RealNight
 from .scene_error import SceneError
 from .scenes import write_boxes, write_frame
@@ -212,6 +212,6 @@ def write_fixed_camera_benchmark(video: str | Path, out: str | Path, seed: int =
     if not tracks:
         raise SceneError(f"{video}: no mover seen whole and alone for {settings.min_frames} frames (is the camera "
                          "fixed? try a lower --min-frames)")
-    info = {"generator": "dadiff.runtime.evaluation.fixed_camera", **video_info(video), "settings": asdict(settings)}
+    info = {"generator": "dadiff.runtime.datamaking.fixed_camera", **video_info(video), "settings": asdict(settings)}
     write_tracks(frames, tracks, out, seed, info, night)
     return tracks

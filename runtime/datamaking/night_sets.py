@@ -89,7 +89,7 @@ def write_camera_nights(dataset_dir: str | Path, out: str | Path, seed: int = 0,
         table[f"{base}_day"], table[f"{base}_night"] = kept, [*kept, "LAI"]
         rows += [night_statistics(f) for f in night[::STATISTICS_EVERY]]
     write_atomic(out / "attributes.json", json.dumps(table, indent=1) + "\n")
-    info = {"generator": "dadiff.runtime.evaluation.night_sets", "night": MODEL, "source": str(dataset_dir),
+    info = {"generator": "dadiff.runtime.datamaking.night_sets", "night": MODEL, "source": str(dataset_dir),
             "seed": seed, "sequences": bases, "night_cameras": cameras}
     write_atomic(out / "benchmark.json", json.dumps(info, indent=1) + "\n")
     return len(bases), {key: float(np.nanmedian([r[key] for r in rows])) for key in rows[0]}
