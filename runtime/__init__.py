@@ -12,8 +12,8 @@ import importlib
 import os
 from typing import Any
 
-# Before onnxruntime loads: its telemetry (1.32) stores a device id under $HOME and, where the home is not
-# writable (the service's user), printed "Failed to persist telemetry device ID" on every run, --help too.
+# Set before onnxruntime loads: its telemetry stores a device id under $HOME and, where the home is not
+# writable (the service's user), prints "Failed to persist telemetry device ID" on every run, --help too.
 # The user's own setting wins.
 os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 

@@ -4,8 +4,8 @@
 Every command's bounded integers and numbers use these, so that a refusal reads the same everywhere and names
 the range and the text given: "expected an integer from 1 to 20, got '0'", "expected an integer of at least 1,
 got 'x'", "expected a number above 0, got 'nan'". Values are checked at parsing, so that the error names the
-option (`dadiff-bench --clip 1` failed later naming a temporary video, `--frames 1e12` was an allocation
-traceback, `data pack --max-mib inf` an OverflowError).
+option, not a temporary file, an allocation or an OverflowError met later (`dadiff-bench --clip 1`,
+`--max-frames 1e12`, `data pack --max-mib inf`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
 
 def float_in(low: float, high: float | None = None, *, open_low: bool = False) -> Callable[[str], float]:
     """argparse type: a finite number in [low, high], or (low, high] with `open_low`; no upper bound when `high`
-    is None. nan and inf are refused (they used to reach the code)."""
+    is None. nan and inf are refused (the code past parsing assumes finite numbers)."""
     if high is None:
         span = f"above {low:g}" if open_low else f"of at least {low:g}"
     else:
@@ -56,7 +56,7 @@ def float_in(low: float, high: float | None = None, *, open_low: bool = False) -
 
 
 positive_int = int_in(1)  # counts, threads, frames
-non_negative_int = int_in(0)  # seeds: numpy refuses negative ones with a traceback, often after an output is made
+non_negative_int = int_in(0)  # seeds: numpy refuses negative ones, and only after an output may be made
 
 
 class _FormerSpelling(argparse.Action):

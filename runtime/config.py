@@ -95,8 +95,8 @@ LOST_KEYS = tuple(f.name for f in fields(Params) if f.name not in HP_KEYS)
 TUNABLE_KEYS = (*HP_KEYS, *LOST_KEYS)
 LOST_DEFAULTS = {k: getattr(Params(0.0, 0.0, 0.0), k) for k in LOST_KEYS}
 
-# (low, high) inclusive bounds; None = unbounded. Growth and size factors have an upper bound too: a search
-# region grown by 1e308 overflowed the crop (an OverflowError instead of a one-line error).
+# (low, high) inclusive bounds; None = unbounded. Growth and size factors have an upper bound too, so that
+# a search region never grows past what the crop arithmetic holds (1e308 overflows it).
 _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "lr": (0.0, 1.0),
     "penalty_k": (0.0, 100.0),  # released 0.04-0.2; exp(-k·change) underflows to 0 everywhere far above
@@ -143,7 +143,7 @@ def _meta_number(meta: Mapping[str, str], key: str, source: str, integer: bool =
 
 
 # Far past any model's values (released: 127 / 255 px crops, context 0.5, floor 10 px) and far below the sizes
-# that overflowed the crop arithmetic (a 1e308 floor or context made every window infinite).
+# that overflow the crop arithmetic (a 1e308 floor or context makes every window infinite).
 GEOMETRY_LIMITS = {"exemplar_size": 4096, "instance_size": 4096, "score_size": 4096, "context_amount": 10.0,
                     "min_size": 1000.0}
 
@@ -281,7 +281,7 @@ def resolve_params(
             strict=False,
         )
     if overrides:
-        if not isinstance(overrides, Mapping):  # "lr=1" or [("lr", 1)] failed on .items()
+        if not isinstance(overrides, Mapping):  # "lr=1" or [("lr", 1)] has no .items()
             raise InputError(f"overrides must be a mapping of setting to value, got {type(overrides).__name__}")
         _apply(values, overrides, InputError, "override", strict=True)
     return Params(**values)  # type: ignore[arg-type]

@@ -1,8 +1,9 @@
 """Exceptions for problems a user can fix (as opposed to bugs), and the one-line reporting every command shares.
 
 `DadiffError` is the base of every exception class the project defines (runtime/, drone/, export/, models/), so
-that an entry point catches one class; each subclass also keeps the built-in base callers relied on before
-(`ModelError` is a ValueError, `UnreadableFile` an OSError). Torch-free: the runtime and the drone import it.
+that an entry point catches one class; each subclass also keeps a built-in base, so callers that
+catch that still catch it (`ModelError` is a ValueError, `UnreadableFile` an OSError). Torch-free: the runtime
+and the drone import it.
 """
 
 from __future__ import annotations

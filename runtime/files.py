@@ -3,7 +3,7 @@
 Two ways, one per kind of output: `RowFile` for logs that grow a line at a time (a failed write leaves the
 file ending at its last whole line), `write_atomic` for files written at once (a failure leaves the old file,
 or none, and no temporary file). Both name the file in the OSError they raise: a write that fails on a full
-disk carries no file name of its own, so the user was told `No space left on device` and not where.
+disk carries no file name of its own, and `No space left on device` alone does not tell the user where.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 SMALL_WIDTH = 160  # px: wide enough for a 20-40 px step to be 5-10 px, small enough for < 0.5 ms
-MAX_SMALL_HEIGHT = 4 * SMALL_WIDTH  # a 3000 x 1 frame made a 160 x 480000 one: seconds per read
+MAX_SMALL_HEIGHT = 4 * SMALL_WIDTH  # a 3000 x 1 frame would make a 160 x 480000 one: seconds per read
 JOLT_FRACTION = 0.02  # of the frame's width (12.8 px at 640): past the read's noise and a hover's sway
 TREND_READS = 11  # a gust's 3-5 frames stay a minority
 

@@ -67,7 +67,7 @@ def thread_count(threads: int | None = None) -> int:
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise InputError(f"threads must be a positive integer, got {threads!r}")
     most = THREADS_PER_CORE * (os.cpu_count() or 1)
-    if threads > most:  # 100000 threads hung the process; 1000000 took all memory
+    if threads > most:  # far more threads than cores hang the process or take all memory
         raise InputError(f"threads is {threads}; at most {most} on this machine ({THREADS_PER_CORE} per logical core)")
     return threads
 

@@ -78,7 +78,7 @@ def prune(root: Path, keep: int = KEEP) -> None:
     """Remove all but the `keep` most recently used cached graphs.
 
     Another process may prune the same folder at the same time: an entry that vanishes between the listing
-    and its stat is skipped (it used to fail that process's model load with "No such file or directory").
+    and its stat is skipped, so that one process's pruning never fails another's model load.
     """
     entries = []
     for path in root.glob("*.onnx"):

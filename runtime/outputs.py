@@ -54,8 +54,8 @@ def inside_folder(path: Path, folder: Path) -> bool:
 
 def check_distinct(video: str | None, outputs: dict[str, Path | None]) -> None:
     """OutputError when an output names the input video, a frame or the ground truth of the input folder, or
-    another output: opening it would truncate input (`--save-video same.mp4` used to replace the input with a
-    3-frame file). A new file inside the input folder is fine: only image files are read as frames."""
+    another output: opening it would truncate input (`--save-video same.mp4` would overwrite the video being
+    read). A new file inside the input folder is fine: only image files are read as frames."""
     named = [(option, Path(path)) for option, path in outputs.items() if path is not None]
     spec = str(video or "")
     is_file = bool(spec) and "://" not in spec and not spec.isdigit() and not spec.startswith("/dev/")
@@ -158,8 +158,8 @@ def draw_overlay(image: np.ndarray, record: Record) -> np.ndarray:
 class Mp4Writer:
     """An mp4v video writer that knows whether its file came out whole.
 
-    OpenCV reports no write error: on a full disk it wrote frames into nothing and then failed to write the
-    index (the `moov` atom, written last), leaving a file no player opens, and the run ended with exit 0.
+    OpenCV reports no write error: on a full disk it writes frames into nothing and then fails to write the
+    index (the `moov` atom, written last), leaving a file no player opens, while the run ends with exit 0.
     `close` opens the written file again and counts its frames; a file that does not hold every frame is
     removed and OutputError names it. Frames are finalised on every ending the process sees (the commands
     turn SIGINT, SIGTERM and SIGHUP into KeyboardInterrupt, so `close` runs: runtime/commands/launch.py).

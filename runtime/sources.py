@@ -45,8 +45,8 @@ DECODER_NOISE = ("JPEG", "jpeg", "libpng", "Corrupt", "Premature end", "extraneo
 class QuietDecoder:
     """Point file descriptor 2 at a scratch file while C decoders run, then pass on what is not their noise.
 
-    A damaged file made libjpeg, OpenCV's AVI reader and FFmpeg print lines of their own around the one
-    `dadiff-run: error:` line. Output of other threads in that window is delayed, not lost.
+    On a damaged file libjpeg, OpenCV's AVI reader and FFmpeg print lines of their own; the user sees
+    only the one `dadiff-run: error:` line. Output of other threads in that window is delayed, not lost.
     """
 
     def __init__(self) -> None:
@@ -292,7 +292,7 @@ class FolderSource:
 
 def source_path(spec: str) -> Path:
     """The video file or image folder that a source spec which is no camera or stream names; SourceError when
-    it is missing or neither (a FIFO with no writer held FFmpeg's probe forever; "no such file" was wrong)."""
+    it is missing or neither (a FIFO with no writer would hold FFmpeg's probe forever), each case named."""
     path = Path(spec).expanduser()
     if path.is_dir() or path.is_file():
         return path

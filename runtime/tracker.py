@@ -64,7 +64,7 @@ def check_box(box: Sequence[float], width: int, height: int) -> tuple[float, flo
         raise InputError(f"init box must be finite, got {box!r}")
     if w <= 0 or h <= 0:
         raise InputError(f"init box has zero or negative size (w={w:g}, h={h:g})")
-    if w < MIN_BOX_SIDE or h < MIN_BOX_SIDE:  # 1e-300 made the crop's context side 0: a ZeroDivisionError
+    if w < MIN_BOX_SIDE or h < MIN_BOX_SIDE:  # smaller (1e-300): a context side of 0, a ZeroDivisionError
         raise InputError(f"init box is under {MIN_BOX_SIDE:g} px (w={w:g}, h={h:g})")
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) lies outside the {width}x{height} frame")

@@ -1,7 +1,7 @@
 """Reading a file the user named (a config, a key, ground truth, detections): a regular file, with a size bound.
 
-`--config FIFO` with no writer blocked forever, and `--config /dev/zero` grew memory until the kernel's OOM
-killer stopped the process. Such a file is refused here with an `OSError` whose `strerror` says why, so every
+A FIFO with no writer would block a reader forever, and `/dev/zero` would grow memory until the kernel's OOM
+killer stops the process. Such a file is refused here with an `OSError` whose `strerror` says why, so every
 reader's existing "cannot read" handling reports it in one line.
 """
 
