@@ -6,8 +6,8 @@ phase correlation a sharp peak. Only a sudden change can be the drone's accident
 target sees the ground flow steadily under a target that stays put in the frame. So each shift is compared
 with the picture's steady motion (the median of the last `TREND_READS` shifts, which a gust of a few frames
 does not move), and only a jolt, a shift that departs from it by more than `JOLT_FRACTION` of the frame's
-width, moves the tracker's search region (a second look where the target was, the surer one kept, lost
-more under gusts than it saved: docs/lab-notebook.md, "Jolts").
+width, moves the tracker's search region (a second look where the target was, the surer one kept, loses
+more under gusts than it saves: docs/lab-notebook.md, "Jolts").
 The frames are compared small and grey, so a read costs well under a millisecond; a read whose peak is weak
 (a dark, flat or changing picture) is ignored.
 """

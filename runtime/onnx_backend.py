@@ -2,7 +2,7 @@
 
 Session settings follow what was measured on small CPUs: ORT_ENABLE_ALL (its layout pass roughly halves
 conv time) and one intra-op thread per physical core. The pool threads spin between the kernels of one call
-(a search call is some 300 small kernels, and waking a sleeping thread for each cost 10–13 % of the call
+(a search call is some 300 small kernels, and waking a sleeping thread for each costs 10–13 % of the call
 on a 2-core AVX2 CPU) and stop spinning when the call returns, so that an idle tracker burns no CPU
 and the template and search sessions do not spin against each other. The optimised graph is cached on disk
 per CPU (runtime/ort_cache.py), and the per-frame call goes through an IO binding whose kernels are bound

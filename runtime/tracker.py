@@ -4,7 +4,7 @@ SiamGAT one (runtime/decode_gat.py) for a model whose metadata says `decoder` si
 Differences from the released tracker, all switchable through parameters:
 - a lost/found state (runtime/lost.py): while lost, box centre and size stay where they were and the
   search region grows;
-- when the whole picture jolts (a gust, a quick yaw), the search region moved with it first
+- when the whole picture jolts (a gust, a quick yaw), the search region moves with it first
   (`motion_compensation`, runtime/motion.py);
 - plausibility: the size changes by at most `max_scale_step` per frame and stays within `max_scale_change`
   (scale) and `max_aspect_change` (aspect) of the initial box; a box held at those limits or covering more
@@ -68,7 +68,7 @@ def check_box(box: Sequence[float], width: int, height: int) -> tuple[float, flo
         raise InputError(f"init box is under {MIN_BOX_SIDE:g} px (w={w:g}, h={h:g})")
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) lies outside the {width}x{height} frame")
-    if w > MAX_BOX_FRAMES * width or h > MAX_BOX_FRAMES * height:  # 1e300 overflowed the crop arithmetic
+    if w > MAX_BOX_FRAMES * width or h > MAX_BOX_FRAMES * height:  # 1e300 overflows the crop arithmetic
         raise InputError(f"init box ({x:g}, {y:g}, {w:g}, {h:g}) is more than {MAX_BOX_FRAMES}x the "
                          f"{width}x{height} frame")
     return x, y, w, h
