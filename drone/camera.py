@@ -145,7 +145,7 @@ class StatusStream:
     def set_interval_us(self, value: float, now: float) -> bool:
         """MAV_CMD_SET_MESSAGE_INTERVAL: -1 stops, 0 restores the default, > 0 sets; False if invalid."""
         if not math.isfinite(value) or (value < 0 and value != -1) or value > INT32_MAX:
-            return False  # MESSAGE_INTERVAL reports it as int32: 3e9 could not be packed
+            return False  # MESSAGE_INTERVAL reports it as int32: 3e9 cannot be packed
         if value == -1:
             self.interval = None
         elif value == 0:

@@ -69,7 +69,7 @@ def _serial_ok(text: str) -> bool:
 
 
 def _bad_ipv4(host: str) -> bool:
-    """Dotted digits that are no IPv4 address (999.1.1.1): the link retried it forever."""
+    """Dotted digits that are no IPv4 address (999.1.1.1): the link would retry it forever."""
     if not re.fullmatch(r"[\d.]+", host):
         return False
     try:
@@ -98,10 +98,10 @@ def mavlink_conn(text: str) -> str:
 
 
 def check_endpoint(url: str) -> None:
-    """ValueError (one line) before the link first opens: a host that does not resolve (`udpout:` to one
-    logged "open" and sent nowhere), or a `udp:`/`udpin:`/`tcpin:` address this machine cannot listen on, its port
-    held by another program included (a second service on one udpin port silently took the ground station's
-    traffic while the first heartbeated on). Serial ports and later reopens are left to the link's retries."""
+    """ValueError (one line) before the link first opens: a host that does not resolve (a `udpout:` to one
+    would log "open" and send nowhere), or a `udp:`/`udpin:`/`tcpin:` address this machine cannot listen on, its
+    port held by another program included (a second service on one udpin port would silently take the ground
+    station's traffic while the first heartbeats on). Serial ports and later reopens are left to the link's retries."""
     scheme, sep, rest = url.partition(":")
     if not sep or scheme not in NETWORK_SCHEMES:
         return
@@ -263,7 +263,7 @@ SERVICE_GROUPS = ("MAVLink camera component (companion computer)", "follow contr
 
 def service_options_given(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
     """The service's options set away from `parser`'s defaults (give a fresh parser: --config sets defaults), but
-    --mavlink: without --mavlink they apply to nothing, and `--follow gimbal` ran a plain track and exited 0."""
+    --mavlink: without --mavlink they apply to nothing (`--follow gimbal` would run a plain track and exit 0)."""
     given = []
     for group in parser._action_groups:
         if group.title in SERVICE_GROUPS:
@@ -418,7 +418,7 @@ def _run_with_signals(service: Any) -> int:
     def stop(signum: int, frame: object) -> None:
         first = not caught
         caught.append(signum)
-        if first:  # a second signal inside the first one's Event.set() deadlocked on its lock
+        if first:  # a second signal inside the first one's Event.set() would deadlock on its lock
             service.stop()
 
     previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)

@@ -96,7 +96,7 @@ def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None = Non
     Config problems go through `parser.error`, so they are reported like any other usage error.
     """
     args = list(sys.argv[1:] if argv is None else argv)
-    # abbreviations as the real parser takes them: `--conf FILE` was read there as --config, here not at all
+    # abbreviations as the real parser takes them: `--conf FILE` is --config there, so here too
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=parser.allow_abbrev, exit_on_error=False)
     pre.add_argument("--config", type=Path)
     try:

@@ -18,8 +18,8 @@ Protocol (common.xml, "Gimbal Protocol v2"):
 Angle targets, not rates. The box gives pitch/yaw rates (`rates_for`: offset from the image centre, clamped
 to `max_rate`), but what goes out is an *angle*: the aim, started from the gimbal's reported attitude when we
 take control and moved by rate × time at every step (what ArduPilot's mount library does itself with a rate
-target). A rate target is kept by both autopilots until replaced (ArduPilot 4.6 and the 4.7.0-dev the issue
-measured forever, 4.7 master for 3 s; PX4's gimbal module forever), so a service that dies, hangs or loses
+target). A rate target is kept by both autopilots until replaced (ArduPilot 4.6 and 4.7.0-dev
+forever, 4.7 master for 3 s; PX4's gimbal module forever), so a service that dies, hangs or loses
 its link mid-follow would leave the camera turning to its stops. An angle target that is no longer updated
 just holds: the gimbal stops where the last aim was (for a servo mount at once; a gimbal with its own
 controller after its own lag). Without a reported attitude there is no safe start, so the gimbal is not

@@ -81,7 +81,7 @@ def _one_frame(mav: Any, data: bytes) -> tuple[Any | None, int]:
 
 def _resync(mav: Any, data: bytes) -> list[Any]:
     """Every valid frame of a damaged datagram, trying each start byte in turn (junk before, between or
-    after frames no longer costs the good ones); the junk is reported as one BAD_DATA per run."""
+    after frames costs none of the good ones); the junk is reported as one BAD_DATA per run."""
     out: list[Any] = []
     pos, junk_from, tries = 0, None, 0
     while pos < len(data) and tries <= MAX_RESYNC:
@@ -105,7 +105,7 @@ def _resync(mav: Any, data: bytes) -> list[Any]:
 
 def parse_datagram(mav: Any, data: bytes) -> list[Any]:
     """The messages (and BAD_DATA) of one UDP datagram: pymavlink's parse, and when that found nothing but
-    damage, a frame-by-frame resync (junk holding a 0xFD byte used to swallow the good frame after it)."""
+    damage, a frame-by-frame resync (so that junk holding a 0xFD byte cannot swallow the good frame after it)."""
     parsed = mav.parse_buffer(data) or []
     partial = mav.buf_len() > 0
     _drop_partial_frame(mav)

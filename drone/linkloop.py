@@ -5,7 +5,7 @@ setpoint leaves within a scheduler slice of the result, not a period later.
 Heartbeat: MAV_TYPE_CAMERA at `heartbeat_hz` from the moment the link is open (as system 1 until the
 autopilot's heartbeat gives its id, unless --sysid), only while the tracker loop is alive (it ticks at least
 every 0.2 s, frames or not); system_status BOOT before the first frame, ACTIVE while frames arrive,
-CRITICAL when they stopped (the camera is being reopened).
+CRITICAL when they stop (the camera is being reopened).
 
 Gimbal following: GIMBAL_MANAGER_STATUS / _INFORMATION, GIMBAL_DEVICE_ATTITUDE_STATUS and the gimbal manager's
 COMMAND_ACKs from our system go to the GimbalFollower, and the autopilot's type from its heartbeat; its

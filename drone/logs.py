@@ -63,8 +63,8 @@ class LogFileHandler(logging.handlers.RotatingFileHandler):
     """The rotating log file, written through RowFile (a failed write leaves the file ending at its last
     whole line), that reports a write failure once instead of a `--- Logging error ---` traceback per record.
 
-    On a full disk every record printed a traceback on stderr (312 lines in 8 s) and the log was lost without
-    a word. Now: one warning line naming the file when writes start failing; the records still go to stdout
+    On a full disk the stock handler prints a traceback on stderr for every record and loses the log without
+    a word. Here: one warning line naming the file when writes start failing; the records still go to stdout
     (journald); each later record tries the file again, and the first that gets through is preceded in the
     file by a line saying how many records it missed.
     """
