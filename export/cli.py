@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search-size", type=int_in(1), metavar="PX",
                    help="search crop side the graphs take, the trained size or smaller by a multiple of twice the "
                         "stride (dadiff-mobile: 255 trained, 223, 191, 159; default: the trained size)")
-    # box side >= 1: the tracker divides by it; at most MAX_MIN_SIZE: 1e308 overflowed the runtime's crop arithmetic
+    # box side >= 1: the tracker divides by it; at most MAX_MIN_SIZE: 1e308 overflows the runtime's crop arithmetic
     p.add_argument("--min-size", type=float_in(1, MAX_MIN_SIZE), metavar="PX",
                    help=f"smallest box side the runtime keeps, in frame pixels, 1..{MAX_MIN_SIZE:g}; it also sets how "
                         "far the crops magnify a tiny target (metadata min_size; default: the checkpoint's, 10 as "
@@ -179,8 +179,8 @@ def _folder_name(output: str | None) -> str:
 
 
 def _refuse_replacing(out: Path, force: bool) -> None:
-    """UserError when `out` already holds a model and --force is not given: its graphs were replaced without
-    a word. Checked before the checkpoint is loaded."""
+    """UserError when `out` already holds a model and --force is not given, so that no model's graphs are
+    replaced without a word. Checked before the checkpoint is loaded."""
     held = [f for f in ("template.onnx", "search.onnx") if (out / f).exists()]
     if held and not force:
         raise UserError(f"{out}: holds a model already ({', '.join(held)}); add --force to replace it, or choose "

@@ -1,4 +1,4 @@
-"""Model and tracker configuration for the two families, stored inside our own checkpoints."""
+"""Model and tracker configuration for the model families (`FAMILIES`), stored inside our own checkpoints."""
 
 from __future__ import annotations
 
@@ -166,8 +166,8 @@ _TRACKER_INTS = ("exemplar_size", "instance_size", "stride", "score_size")
 ALIGNS = ("released", "paper", "none")
 
 
-# Keys of experiments that did not ship, which states saved before their removal hold at these values (the
-# only behaviour built now); another value names a network this version cannot build.
+# Keys of experiments that did not ship: a saved state may hold them, at these values only (the one behaviour
+# this version builds); another value names a network this version cannot build.
 RETIRED_KEYS: dict[str, Any] = {"head_upsample": 1, "antialias_blocks": [], "fine_skip": False,
                                 "align_template": False, "align_template_gate": 0.0}
 

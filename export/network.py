@@ -1,6 +1,7 @@
 """The DaDiff Siamese tracker network: backbone -> neck -> DDIM alignment -> tracking-oriented layer -> BAN.
 
-Both families are this one module with different configurations (config.py). The template branch produces
+The BAN families (dadiff-ban-r50, dadiff-lite, dadiff-mobile) are this one module with different
+configurations (config.py); dadiff-gat-googlenet is export/gat.py. The template branch produces
 per-level aligned features and the head's template kernels once per sequence; the search branch runs per
 frame and only needs those kernels.
 """

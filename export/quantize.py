@@ -54,7 +54,7 @@ from .onnx_export import SEARCH_FILE, TEMPLATE_FILE, ExportError, random_ops, st
 
 CALIBRATION_SEED = 7  # generated calibration sequences: training photos, seeds 7, 8, ...
 CALIBRATION_SEQUENCE_FRAMES = 25  # search crops per generated calibration sequence (many short sequences)
-EVAL_SEED = 2026  # the README's benchmark seed (test photos)
+EVAL_SEED = 2026  # the generated benchmark's seed (test photos; docs/evaluation.md)
 HELDOUT_CROPS = 200  # search feeds kept, spread evenly, from the fp32 evaluation run: the deviation check
 BENCH_THREADS = 2
 _CALIBRATION_CHUNK = 10  # crops per calibration pass: bounds what the calibrator holds in memory

@@ -114,7 +114,7 @@ def _bound(limit: float) -> str:
 
 
 def _check_day(sources: list[dict[str, Any]]) -> None:
-    """At least one known day source: an empty list or a misspelt kind used to fail only once training ran."""
+    """At least one known day source: an empty list or a misspelt kind is refused here, not once training runs."""
     if not sources:
         raise ValueError("'day' is []; expected at least one day source (e.g. [{kind = \"scenes\"}])")
     for i, source in enumerate(sources, 1):
@@ -137,8 +137,8 @@ def _unknown_source_key(key: str, value: Any, kind: str) -> str:
 
 
 def _check_source(where: str, kind: str, source: dict[str, Any]) -> None:
-    """Each key of one day source: a misspelt option (`strech`) or a sequence option on scenes used to be
-    dropped silently, and a bad value surfaced only as the run started, without the file's name."""
+    """Each key of one day source: a misspelt option (`strech`) or a sequence option on scenes is refused, not
+    dropped silently, and a bad value is named with the file's name here, not as the run starts."""
     keys = DAY_KEYS[kind]
     unknown = [_unknown_source_key(k, v, kind) for k, v in source.items() if k not in keys]
     if unknown:

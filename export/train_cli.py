@@ -17,7 +17,7 @@ PROG = "dadiff-train"
 SEED_MAX = 2**32 - 1  # numpy's legacy generators take no more; seed * 1000 + rank must fit torch's 64 bits
 EXPORT_EXTRA = 'pip install "dadiff[export]"'
 
-# key, default, what it does: the TrainConfig fields (tests/test_reliability_train.py keeps them in step)
+# key, default, what it does: the TrainConfig fields (tests/test_reliability_export.py keeps them in step)
 CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("out", '"runs/lite"', "output folder: last.pt (resume), final.pt (export this), log.csv"),
     ("stage", '"dadiff"', '"baseline" (tracker alone, day pairs) or "dadiff" (with the DaDiff block)'),

@@ -290,7 +290,7 @@ class SequenceSource:
         """The last sampled pair at night. With `one_night`, as `dadiff-eval video` renders a sequence
         (`night_sequence`): one "real" night camera and street lights fixed in the image, the exposure locked
         on the template frame, so the template and the search frame are lit alike. Otherwise (and for the
-        "classic" style) each frame gets its own random night, as before. `path_lamps` is a scene's (it needs
+        "classic" style) each frame gets its own random night. `path_lamps` is a scene's (it needs
         the scene's ground)."""
         from dadiff.runtime.datamaking.fixed_camera import night_sequence
         from dadiff.runtime.datamaking.night import render_night
@@ -383,7 +383,7 @@ class PairStream(IterableDataset):
 
     def _night_style(self, rng: np.random.Generator) -> str:
         """One style per pair (one camera films both frames); no draw with a single style, so a stream
-        rendered in one style is the same as before styles could be mixed."""
+        rendered in one style does not depend on whether styles can be mixed."""
         if len(self.night_styles) == 1:
             return self.night_styles[0]
         return self.night_styles[int(rng.integers(len(self.night_styles)))]

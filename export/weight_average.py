@@ -1,9 +1,9 @@
 """An exponential moving average of a network's weights, kept beside the training (Polyak averaging).
 
-A short round at a fine-tuning rate ends wherever its last noisy steps left it; two seeds of the same round
-differ on the test sets by more than the round's own effect. The average of the last steps' weights is less
-at the mercy of where they ended (over three seeds of the default's round it was level or ahead on every
-set's mean; docs/lab-notebook.md, "A moving average of the weights"). BatchNorm statistics are averaged alike; integer
+A short fine-tuning run ends wherever its last noisy steps leave it; two seeds of the same run differ on the
+test sets by more than the run's own effect. The average of the last steps' weights is less at the mercy of
+where they end (over three seeds of a fine-tuning stage of the default it was level or ahead on every set's
+mean; docs/lab-notebook.md, "A moving average of the weights"). BatchNorm statistics are averaged alike; integer
 buffers (BN's step counters) are copied.
 """
 
