@@ -1,8 +1,8 @@
 """A recipe in stages: one config whose `[[stages]]` run in order, each continuing from the one before.
 
-A model's recipe is often several rounds: a stage-1 tracker, the DaDiff block joined to it, rounds on new
-data. Written as stages of one config, `dadiff-train --config FILE` runs them all, each in its own folder
-(`<out>/NN-name`), and hands each stage's final state to the next, so no state is copied by hand; run
+A model's recipe is often several training runs: a stage-1 tracker, the DaDiff block joined to it,
+fine-tuning on new data. Written as stages of one config, `dadiff-train --config FILE` runs them all, each
+in its own folder (`<out>/NN-name`), and hands each stage's final state to the next, so no state is copied by hand; run
 again, it skips finished stages and resumes the one that was stopped. The `[train]` table holds the keys
 every stage shares; a stage lists what it changes (each key replaces the shared value whole) and:
 
