@@ -198,8 +198,8 @@ class SceneSource:
 def _count_mismatch(frames: int, boxes: int) -> str:
     """Why a sequence's boxes cannot be paired with its frames by index, or "" when they can.
 
-    Trimming to the shorter side paired boxes with other frames: OTB labels David from frame 300 (471 boxes
-    for 770 frames), so frame 1 got frame 300's box; the evaluation refuses such sequences too."""
+    Trimming to the shorter side would pair boxes with other frames: OTB labels David from frame 300 (471
+    boxes for 770 frames), so frame 1 would get frame 300's box; the evaluation refuses such sequences too."""
     if frames == boxes:
         return ""
     counts = f"{plural(boxes, 'box', 'boxes')} for {plural(frames, 'frame')}"

@@ -168,7 +168,7 @@ class VideoSource:
                 if self.live:
                     stamp = time.time()
                 else:
-                    # failed reads followed by a good one were frames skipped, not the end of the file
+                    # failed reads followed by a good one are frames skipped, not the end of the file
                     self.skipped += failures
                     stamp = index / self.fps if self.fps else self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000
                 failures = 0
