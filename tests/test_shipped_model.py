@@ -51,12 +51,13 @@ def test_source_sha256_names_the_file_exported_and_the_model_card_says_which(fol
     import hashlib
     from pathlib import Path
 
+    repo = Path(__file__).resolve().parent.parent
     meta = {p.key: p.value for p in onnx.load(str(folder / "search.onnx")).metadata_props}
+    folder = repo / "models" / folder.name  # checkpoint.pt stays in the checkout, out of the installed package
     card = (folder / "MODEL_CARD.md").read_text()
     assert meta["source_sha256"][:16] in card
     checkpoint = hashlib.sha256((folder / "checkpoint.pt").read_bytes()).hexdigest()
     assert checkpoint[:16] in card
     if checkpoint != meta["source_sha256"]:  # the exported file is in the repository and named in the card
-        repo = Path(__file__).resolve().parent.parent
         named = [p for p in (repo / "export" / "resume").glob("*.pt") if f"export/resume/{p.name}" in card]
         assert [hashlib.sha256(p.read_bytes()).hexdigest() for p in named].count(meta["source_sha256"]) == 1
