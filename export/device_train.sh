@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Train on a lent GPU machine (the workplace's `device` tool), resuming a run started here, and bring the
 # checkpoint back. That machine has PyTorch, OpenCV and scikit-image but no registry and not this package,
-# and takes at most 64 MiB of working tree, so a run goes in two steps:
+# and takes at most 64 MiB of working tree, so a run goes in two steps. It handles one run folder (one
+# config), not a staged recipe: give it a stage's folder and that stage's settings.
 #
 #   here:   bash export/device_train.sh prepare runs/lite-baseline
 #           -> .device/: a 16 MiB library pack, the NanoTrack v3 teacher (used where onnxruntime is there), tqdm,

@@ -26,7 +26,7 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 
-from dadiff.runtime.errors import os_error_line
+from dadiff.runtime.errors import DadiffError, os_error_line
 
 from .checkpoint import (
     CheckpointError,
@@ -761,7 +761,7 @@ def main(argv: list[str] | argparse.Namespace | None = None) -> int:
     except SetupError as e:  # found as the run is set up: name the file that sets the key
         print(f"dadiff-train: error: {key_file(args.config, e.key)}: {e}", file=sys.stderr)
         return 2
-    except (ValueError, CheckpointError) as e:
+    except (DadiffError, ValueError, CheckpointError) as e:
         print(f"dadiff-train: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # `out` on a read-only filesystem, a full disk, a data folder the user may not read

@@ -5,8 +5,7 @@ pixels), the search graph runs once, and the box is read before the tracker smoo
 (`Tracker.look`). Tracking mixes the network's box error with its own history; this reads the first alone.
 With a stride-16 score map a target falls anywhere between two grid points, so the read is taken at several
 shifts (by default every quarter of the stride) and their mean is what tracking meets on average. The
-stride is the metadata's, the points' spacing; a head on a finer grid (`head_upsample`) reads its
-features' wider cells only with `--shifts` given.
+stride is the metadata's, the points' spacing; `--shifts` sets other shifts.
 Reported per shift: the median log ratio of the box's width and height to the truth, over all frames and by
 thirds of the true width (frame pixels); and where the box's centre lands: its median offset from the true
 centre along the shift, in true widths (0: the network found the target; positive: it stayed towards the
