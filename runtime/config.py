@@ -66,6 +66,10 @@ class Params:
     `motion_compensation`: above 0, the search region moves with the whole picture's jolts (runtime/motion.py:
     a gust, a quick yaw; not its steady flow) wherever the phase-correlation peak of two consecutive frames
     reaches this value; 0 turns it off, and the released tracker (`lost_score=0`) ignores it.
+    `still_frames`, `still_travel`: a box that has moved on the ground and then stays within `still_travel`
+    of its size against the ground around it for `still_frames` frames is 'uncertain', never 'tracking'
+    (runtime/still.py: the lock on a post or a lamp a follow controller must not chase); `still_frames=0`
+    turns it off, and the released tracker ignores it.
     """
 
     lr: float
@@ -84,6 +88,8 @@ class Params:
     max_aspect_change: float = 4.0
     max_frame_cover: float = 0.5
     motion_compensation: float = 0.2
+    still_frames: int = 30
+    still_travel: float = 0.15
 
     @property
     def released(self) -> bool:
@@ -91,6 +97,7 @@ class Params:
         return self.lost_score == 0
 
 
+INTEGER_KEYS = ("lost_frames", "still_frames")
 LOST_KEYS = tuple(f.name for f in fields(Params) if f.name not in HP_KEYS)
 TUNABLE_KEYS = (*HP_KEYS, *LOST_KEYS)
 LOST_DEFAULTS = {k: getattr(Params(0.0, 0.0, 0.0), k) for k in LOST_KEYS}
@@ -114,6 +121,8 @@ _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "max_aspect_change": (1.0, 1000.0),
     "max_frame_cover": (0.01, 1.0),
     "motion_compensation": (0.0, 1.0),
+    "still_frames": (0, 1000),  # 16 KB of ring per frame kept: 1000 frames is 16 MB
+    "still_travel": (0.0, 100.0),
 }
 
 
@@ -237,7 +246,7 @@ def _apply(
             if strict:
                 raise fail(f"unknown {what} '{key}' (known: {', '.join(TUNABLE_KEYS)})")
             continue
-        integer = key == "lost_frames"
+        integer = key in INTEGER_KEYS
         value = _as_number(raw, integer)
         if value is None:
             kind = "an integer" if integer else "a number"

@@ -52,6 +52,13 @@ class LostMonitor:
         self.state = TRACKING if plausible and score >= p.lost_score and self._confident() else UNCERTAIN
         return self.state
 
+    def demote(self) -> str:
+        """This frame is not 'tracking' whatever its score (a box standing still on the ground, runtime/still.py);
+        'uncertain' instead, from which the next confident frame enters 'tracking' again."""
+        if self.state == TRACKING:
+            self.state = UNCERTAIN
+        return self.state
+
     def _smooth(self, score: float) -> None:
         a = self.params.score_smoothing
         self.confidence = a * score + (1.0 - a) * self.confidence

@@ -6,6 +6,8 @@ Differences from the released tracker, all switchable through parameters:
   search region grows;
 - when the whole picture jolts (a gust, a quick yaw), the search region moves with it first
   (`motion_compensation`, runtime/motion.py);
+- a box that stands still on the ground around it after moving (a lock on a post or a lamp) is 'uncertain',
+  not 'tracking' (`still_frames`, runtime/still.py);
 - plausibility: the size changes by at most `max_scale_step` per frame and stays within `max_scale_change`
   (scale) and `max_aspect_change` (aspect) of the initial box; a box held at those limits or covering more
   than `max_frame_cover` of the frame is never 'tracking'; tracking/uncertain follow a smoothed confidence
@@ -36,6 +38,7 @@ from .frames import as_image, to_blob
 from .lost import LOST, LostMonitor
 from .motion import PictureMotion
 from .onnx_backend import OnnxBackend
+from .still import StillCheck
 
 
 @dataclass(frozen=True)
@@ -153,6 +156,8 @@ class Tracker:
         self._monitor = LostMonitor(self.params)
         compensate = self.params.motion_compensation > 0 and not self.params.released
         self._motion = PictureMotion(self.params.motion_compensation) if compensate else None
+        judge_still = self.params.still_frames > 0 and not self.params.released
+        self._still = StillCheck(self.params.still_frames, self.params.still_travel) if judge_still else None
         self._feeds: dict[str, np.ndarray] | None = None
         self._centre = (0.0, 0.0)
         self._size = (0.0, 0.0)
@@ -213,6 +218,9 @@ class Tracker:
         self._monitor = LostMonitor(self.params)
         if self._motion is not None:
             self._motion.reset(image)
+        if self._still is not None:
+            self._still.reset()
+            self._still.observe(image, (*self._centre, w, h))
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame; the search graph runs once."""
@@ -252,6 +260,8 @@ class Tracker:
         cx, cy = max(0.0, min(cx, img_w)), max(0.0, min(cy, img_h))
         w, h = self._clip_size((w, h), img_w, img_h)
         self._centre, self._size = (cx, cy), (w, h)
+        if self._still is not None and self._still.observe(image, (cx, cy, w, h)):
+            state = self._monitor.demote()
         t3 = time.perf_counter()
         latency = {"motion": t_motion - t0, "crop": t1 - t_motion, "search": t2 - t1, "post": t3 - t2, "total": t3 - t0}
         return TrackResult((cx - w / 2, cy - h / 2, w, h), det.score, state, latency, self._monitor.confidence)

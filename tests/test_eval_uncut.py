@@ -96,7 +96,10 @@ def test_tracking_on_an_absent_frame_counts_as_off_and_unknown_frames_do_not_cou
     _results(tmp_path / "r" / "chaser", "w", [BOX] * 4 + [post] * 4, ["init"] + ["tracking"] * 7)
     _results(tmp_path / "r" / "early", "w", [BOX, BOX, post, post] + [post] * 4,
              ["init"] + ["tracking"] * 3 + ["uncertain"] * 4)
+    _results(tmp_path / "r" / "shy", "w", [BOX] * 4 + [post] * 4, ["init", "tracking"] + ["uncertain"] * 6)
     rows = {r.clip: r for r in uncut_scores(dataset, tmp_path / "r" / "honest")}
+    assert rows["w"].tracking_on == 1.0  # every frame on the person reported 'tracking'
+    assert uncut_scores(dataset, tmp_path / "r" / "shy")[0].tracking_on == pytest.approx(1 / 3)
     assert (rows["w"].in_view, rows["w"].absent) == (3, 3)  # frames after the first; the unknown one left out
     assert rows["w"].success == pytest.approx(PERFECT) and rows["w"].tracking_off == 0
     chaser = uncut_scores(dataset, tmp_path / "r" / "chaser")[0]

@@ -116,7 +116,9 @@ class UncutScores:
 
     `success` and `precision` (at 20 px) over the frames in view; `tracking_off`: of the frames in view or
     absent, the share reported 'tracking' while the box's centre is not on the person (`anatomy`'s centred
-    test) or the person is absent; `tracking_absent`: the part of it on absent frames."""
+    test) or the person is absent; `tracking_absent`: the part of it on absent frames; `tracking_on`: of the
+    frames in view with the box's centre on the person, the share reported 'tracking' (what a rule that
+    withholds 'tracking' costs)."""
 
     clip: str
     in_view: int
@@ -125,6 +127,7 @@ class UncutScores:
     precision: float
     tracking_off: float
     tracking_absent: float
+    tracking_on: float
 
 
 def _clip_frames(gt: np.ndarray, pred: np.ndarray, absent: np.ndarray, states: Sequence[str]) -> dict:
@@ -134,7 +137,8 @@ def _clip_frames(gt: np.ndarray, pred: np.ndarray, absent: np.ndarray, states: S
     tracking = (np.asarray(states) == "tracking")[1:]
     off = ~centred_frames(gt, pred)[1:] | gone
     return {"gt": gt[1:][seen], "pred": pred[1:][seen], "seen": seen, "gone": gone,
-            "wrong": tracking & off & (seen | gone), "wrong_gone": tracking & gone}
+            "wrong": tracking & off & (seen | gone), "wrong_gone": tracking & gone,
+            "on": ~off & seen, "right": tracking & ~off & seen}
 
 
 def _scores(clip: str, parts: Sequence[dict]) -> UncutScores:
@@ -145,10 +149,12 @@ def _scores(clip: str, parts: Sequence[dict]) -> UncutScores:
     wrong = sum(int(p["wrong"].sum()) for p in parts)
     wrong_gone = sum(int(p["wrong_gone"].sum()) for p in parts)
     share = (lambda n: n / count) if count else (lambda n: float("nan"))
+    on = sum(int(p["on"].sum()) for p in parts)
+    right = sum(int(p["right"].sum()) for p in parts)
     return UncutScores(clip, len(gt), sum(int(p["gone"].sum()) for p in parts),
                        float(curves.success.mean()) if curves else float("nan"),
                        float(curves.precision[PRECISION_INDEX]) if curves else float("nan"),
-                       share(wrong), share(wrong_gone))
+                       share(wrong), share(wrong_gone), right / on if on else float("nan"))
 
 
 def clip_absence(dataset: Dataset) -> dict[str, np.ndarray]:
@@ -172,7 +178,7 @@ def uncut_scores(dataset: Dataset, folder: Path) -> list[UncutScores]:
     clips = [_scores(name, [part]) for name, part in parts.items()]
     mean = UncutScores("mean", sum(c.in_view for c in clips), sum(c.absent for c in clips),
                        *(float(np.nanmean([getattr(c, key) for c in clips]))
-                         for key in ("success", "precision", "tracking_off", "tracking_absent")))
+                         for key in ("success", "precision", "tracking_off", "tracking_absent", "tracking_on")))
     return [*clips, _scores("all", list(parts.values())), mean]
 
 
@@ -180,9 +186,12 @@ def format_uncut(rows: dict[str, list[UncutScores]]) -> str:
     """One table, a row per tracker and clip: frames, success, precision and the wrong-lock shares."""
     width = max(8, *(len(name) for name in rows))
     lines = ["frames after the first; success and precision (20 px) over the frames in view; tracking-off: share "
-             "of in-view + absent frames reported 'tracking' with the centre off the person or the person gone",
-             f"{'Tracker':<{width}}  {'clip':<8}  in view  absent  success  precision  tracking-off  (absent)"]
+             "of in-view + absent frames reported 'tracking' with the centre off the person or the person gone; "
+             "tracking-on: share of the frames centred on the person reported 'tracking'",
+             f"{'Tracker':<{width}}  {'clip':<8}  in view  absent  success  precision  tracking-off  (absent)  "
+             "tracking-on"]
     for name, items in rows.items():
         lines += [f"{name:<{width}}  {r.clip:<8}  {r.in_view:7d}  {r.absent:6d}  {r.success:7.3f}  "
-                  f"{r.precision:9.3f}  {r.tracking_off:11.1%}  {r.tracking_absent:8.1%}" for r in items]
+                  f"{r.precision:9.3f}  {r.tracking_off:11.1%}  {r.tracking_absent:8.1%}  {r.tracking_on:11.1%}"
+                  for r in items]
     return "\n".join(lines)
