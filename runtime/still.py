@@ -69,8 +69,9 @@ class StillCheck:
             self._past.append((box, ring, (0.0, 0.0)))
             return False
         last_box, last_ring, summed = self._past[-1]
-        step = self._shift(last_ring, self._cut(image, last_box), last_box) or (0.0, 0.0)  # no read: the
-        self._past.append((box, ring, (summed[0] + step[0], summed[1] + step[1])))  # window's read corrects it
+        # a step without a read counts as no shift: the read across the window below corrects it
+        step = self._shift(last_ring, self._cut(image, last_box), last_box) or (0.0, 0.0)
+        self._past.append((box, ring, (summed[0] + step[0], summed[1] + step[1])))
         if len(self._past) <= self.frames:
             return False
         allowed = self.travel * math.sqrt(max(box[2] * box[3], 1e-6))
