@@ -97,7 +97,7 @@ class Params:
         return self.lost_score == 0
 
 
-INTEGER_KEYS = ("lost_frames", "still_frames")
+INTEGER_KEYS = tuple(f.name for f in fields(Params) if f.type in (int, "int"))  # counts, read as integers
 LOST_KEYS = tuple(f.name for f in fields(Params) if f.name not in HP_KEYS)
 TUNABLE_KEYS = (*HP_KEYS, *LOST_KEYS)
 LOST_DEFAULTS = {k: getattr(Params(0.0, 0.0, 0.0), k) for k in LOST_KEYS}
