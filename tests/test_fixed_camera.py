@@ -106,6 +106,20 @@ def test_video_command_renders_the_night_with_the_camera_model(tmp_path: Path, c
     assert len(night) == 50 and cv2.imread(str(night.frames[0]), cv2.IMREAD_GRAYSCALE).mean() < 60
 
 
+def test_video_command_renders_the_night_with_the_sensor_model(tmp_path: Path):
+    video = _write_folder(_video([_walk(30, 100, 3, 50)], 50), tmp_path / "walk")
+    nights = {}
+    for model in ("camera", "sensor"):
+        out = tmp_path / model
+        args = ["video", "--video", str(video), "--output", str(out), "--min-frames", "40", "--night", model]
+        assert eval_main(args) == 0
+        info = json.loads((out / "benchmark.json").read_text())
+        assert info["night"] == model and info["night_cameras"]["vid001_night"]["model"] == model
+        nights[model] = cv2.imread(str(out / "vid001_night" / "img" / "0001.jpg"))
+    assert nights["sensor"].shape == nights["camera"].shape
+    assert not np.array_equal(nights["sensor"], nights["camera"])  # a third look, not the second one renamed
+
+
 @pytest.mark.parametrize(
     "make, message",
     [

@@ -255,8 +255,9 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
 
 def _add_night_model_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--night", choices=NIGHT_MODELS, default="real",
-                        help="night model: real (the generator's, default) or camera (an independently written "
-                        "camera simulation in linear light, camera_night.py)")
+                        help="night model: real (the generator's, default), camera (an independently written "
+                        "camera simulation in linear light, camera_night.py) or sensor (a third, written apart from "
+                        "both: a Bayer sensor and a budget ISP, sensor_night.py)")
 
 
 def _add_night_parser(sub: argparse._SubParsersAction, selection: argparse.ArgumentParser) -> None:

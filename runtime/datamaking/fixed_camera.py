@@ -159,22 +159,32 @@ def night_sequence(day: list[np.ndarray], rng: np.random.Generator, seed: list[i
             for i, (frame, n) in enumerate(zip(day, numbers, strict=True))]
 
 
-NIGHT_MODELS = ("real", "camera")  # the generator's "real" night, or the independent camera model (camera_night)
+# the generator's "real" night, or one of two night models written apart from it and from each other: the camera
+# model (camera_night.py) and the sensor model (sensor_night.py; written by someone who had read neither, so it
+# stays independent of a training that renders with the other two)
+NIGHT_MODELS = ("real", "camera", "sensor")
+
+
+def independent_night(model: str):
+    """The `render_night(day, seed) -> (frames, record)` of an independent night model by its name."""
+    if model == "camera":
+        from .camera_night import render_night
+    else:
+        from .sensor_night import render_night
+    return render_night
 
 
 def write_tracks(frames: list[np.ndarray], tracks: list[Track], out: Path, seed: int, info: dict,
                  night: str = "real") -> None:
     """Each track as `<out>/vidNNN_day` and `_night` (OTB layout) with `attributes.json`, and `info` with the
     sequences' video frames as `benchmark.json`; `night`: which night model renders the nights (NIGHT_MODELS);
-    the camera model's settings for each sequence are recorded under `night_cameras`."""
+    an independent model's settings for each sequence are recorded under `night_cameras`."""
     table, cameras = {}, {}
     for k, track in enumerate(tracks):
         name = f"vid{k + 1:03d}"
         day = frames[track.start:track.start + len(track.boxes)]
-        if night == "camera":
-            from .camera_night import render_night  # the independent model: shares no code with night.py
-
-            dark, cameras[f"{name}_night"] = render_night(day, [seed, k])
+        if night in ("camera", "sensor"):  # the independent models: they share no code with night.py
+            dark, cameras[f"{name}_night"] = independent_night(night)(day, [seed, k])
         else:
             dark = night_sequence(day, np.random.default_rng([seed, k]), [seed, k, 1_000_003])
         for kind, images in (("day", day), ("night", dark)):
