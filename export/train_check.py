@@ -13,6 +13,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+from dadiff.runtime.datamaking.camera_night import MODEL as CAMERA_NIGHT
 from dadiff.runtime.datamaking.night import NIGHT_STYLES
 from dadiff.runtime.errors import DadiffError
 
@@ -73,7 +74,9 @@ TRAIN_FAMILIES = tuple(f for f in FAMILIES if f != GAT_FAMILY)  # dadiff-gat-goo
 CHOICES: dict[str, tuple[str, ...]] = {"stage": ("baseline", "dadiff"), "family": TRAIN_FAMILIES,
                                        "optimizer": ("sgd", "adamw"), "align_target": ("eps", "chain", "restore"),
                                        "loc_region": ("ellipse", "box"), "night_pairs": ("frame", "scene")}
-ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": tuple(NIGHT_STYLES)}  # lists of strings
+# night styles: the generator's, and the independent camera model (camera_night.py) as a training night too
+TRAIN_NIGHT_STYLES = (*NIGHT_STYLES, CAMERA_NIGHT)
+ITEM_CHOICES: dict[str, tuple[str, ...]] = {"night_styles": TRAIN_NIGHT_STYLES}  # lists of strings
 KINDS: dict[str, str] = {"train_only": "a list of names"}  # where the default (empty) does not tell
 
 

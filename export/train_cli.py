@@ -26,7 +26,7 @@ CONFIG_KEYS: tuple[tuple[str, str, str], ...] = (
     ("model", "{}", "model config overrides, e.g. {align = \"none\", ddim_steps = 4}"),
     ("day", '[{kind = "scenes", split = "train"}]', "day data: kind scenes, got10k, otb, sequences or images"),
     ("night", "(rendered)", "folder of night images or videos; default: the day frames rendered at night"),
-    ("night_styles", '["real"]', "night renderer styles, one drawn per pair: real, classic"),
+    ("night_styles", '["real"]', "night renderer styles, one drawn per pair: real, classic, camera"),
     ("night_pairs", '"frame"', '"frame" (a night per frame) or "scene": one night over a generated scene\'s pair'),
     ("night_path_lamps", "0.0", 'share of "scene" night pairs given 1-3 lamp heads beside the target (0-1)'),
     ("negative_pairs", "0.0", "share of pairs whose search crop holds another object, negative there (0-1)"),

@@ -2,7 +2,8 @@
 
 Day sources give (template frame, template box, search frame, search box): generated scenes from the
 training split of photographs, GOT-10k / OTB-style sequence folders, or plain image folders (both crops cut
-from one image). Night images come from the night renderer (the same content by night, which also pairs
+from one image). Night images come from a night renderer (the generator's, or the independent camera model:
+the same content by night, which also pairs
 day and night features for L_align) or from unlabelled night image folders / videos. Everything is produced
 on the fly, so nothing needs to fit in memory.
 """
@@ -23,7 +24,7 @@ from torch.utils.data import IterableDataset, get_worker_info
 from dadiff.runtime.crop import context_side, crop_side, mean_colour, subwindow
 from dadiff.runtime.datamaking.datasets import DatasetError, list_frames, plural, read_boxes, warn
 
-from .train_check import DAY_KINDS
+from .train_check import CAMERA_NIGHT, DAY_KINDS
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
 
@@ -365,6 +366,19 @@ def make_day_source(spec: dict):
     raise ValueError(f"unknown day data kind {kind!r}; expected one of {', '.join(DAY_KINDS)}")
 
 
+def camera_night_pair(fz: np.ndarray, fx: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A pair's frames filmed at night by one camera of the independent night model (camera_night.py), so that
+    the training does not learn the generator's night alone: the camera's lights fixed in the image and its
+    exposure locked on the template's frame (frames of two sizes: each on its own, the same camera)."""
+    from dadiff.runtime.datamaking.camera_night import render_night
+
+    seed = [int(s) for s in rng.integers(0, 2**31, size=2)]
+    if fz.shape == fx.shape:
+        nz, nx = render_night([fz, fx], seed)[0]
+        return nz, nx
+    return render_night([fz], seed)[0][0], render_night([fx], seed)[0][0]
+
+
 class PairStream(IterableDataset):
     """Endless stream of samples; each worker / rank draws from its own seeded generator."""
 
@@ -420,7 +434,9 @@ class PairStream(IterableDataset):
                 zn, xn = z[:1, :1], x[:1, :1]  # placeholders, unused
             elif self.night_source is None:  # the same frames rendered at night (sensor noise at frame scale)
                 style = self._night_style(rng)
-                if self.night_pairs == "scene" and hasattr(source, "night_pair") and not negative:
+                if style == CAMERA_NIGHT:
+                    nz, nx = camera_night_pair(fz, fx, rng)
+                elif self.night_pairs == "scene" and hasattr(source, "night_pair") and not negative:
                     nz, nx = source.night_pair(fz, fx, rng, style, self.night_path_lamps)
                 else:
                     nz, nx = self._night(fz, rng, style), self._night(fx, rng, style)

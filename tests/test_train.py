@@ -421,7 +421,7 @@ def test_night_styles_are_checked_before_training(tmp_path, capsys):
 
     assert main(["--config", str(config)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.endswith("'night_styles' has 'dusk'; expected items from classic, real")
+    assert err.endswith("'night_styles' has 'dusk'; expected items from classic, real, camera")
 
 
 def test_chain_alignment_pulls_night_outputs_towards_the_paired_day_outputs(tmp_path, image_folder):

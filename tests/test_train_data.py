@@ -65,6 +65,39 @@ def test_night_styles_mix_per_pair(monkeypatch):
     assert float(classic["x_night"].mean()) > float(default_sample["x_night"].mean())  # classic is brighter
 
 
+def test_camera_night_pairs_are_the_independent_models_night(monkeypatch):
+    """night_styles "camera": both frames of a pair go through one camera of camera_night.py, which the generator's
+    scene nights never call; the pair is darker than its day and shares the camera's exposure lock."""
+    from dadiff.runtime.datamaking import camera_night
+
+    calls = []
+    render = camera_night.render_night
+
+    def spy(day, seed):
+        calls.append(len(day))
+        return render(day, seed)
+
+    monkeypatch.setattr(camera_night, "render_night", spy)
+    stream = iter(PairStream([SceneSource("train")], None, CropConfig(), seed=5, night_pairs="scene",
+                             night_styles=("camera",)))
+    samples = [next(stream) for _ in range(4)]
+    assert calls == [2] * 4  # template and search frames of each pair filmed together by one camera
+    night, day = (sum(float(s[key].mean()) for s in samples) for key in ("x_night", "x"))
+    assert night < 0.7 * day  # a crop under a lamp's pool can be bright; four are not
+    calls.clear()
+    next(iter(PairStream([SceneSource("train")], None, CropConfig(), seed=5, night_pairs="scene")))
+    assert calls == []  # the default style never renders with the camera model
+
+
+def test_camera_night_pair_of_two_frame_sizes_is_rendered_frame_by_frame():
+    from dadiff.export.train_data import camera_night_pair
+
+    rng = np.random.default_rng(0)
+    big, small = np.full((120, 160, 3), 200, np.uint8), np.full((90, 100, 3), 200, np.uint8)
+    nz, nx = camera_night_pair(big, small, rng)
+    assert nz.shape == big.shape and nx.shape == small.shape and nz.mean() < 100 and nx.mean() < 100
+
+
 def test_a_resumed_stream_draws_new_pairs():
     """Resuming at step k must not replay the pairs of steps 1..k (seeded generators would)."""
     def first(start_step):
