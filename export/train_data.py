@@ -2,10 +2,9 @@
 
 Day sources give (template frame, template box, search frame, search box): generated scenes from the
 training split of photographs, GOT-10k / OTB-style sequence folders, or plain image folders (both crops cut
-from one image). Night images come from a night renderer (the generator's, or the independent camera model:
-the same content by night, which also pairs
-day and night features for L_align) or from unlabelled night image folders / videos. Everything is produced
-on the fly, so nothing needs to fit in memory.
+from one image). Night images come from a night renderer (the generator's, or the independent camera model;
+the same content by night, which also pairs day and night features for L_align) or from unlabelled night
+image folders / videos. Everything is produced on the fly, so nothing needs to fit in memory.
 """
 
 from __future__ import annotations
