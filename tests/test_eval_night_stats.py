@@ -17,6 +17,8 @@ The frames are rendered from scikit-image photos (no library needed).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -84,3 +86,21 @@ def test_the_classic_night_is_what_the_note_measured():
     frames = make_sequence(301, frames=2, size=SIZE).night  # classic: the seeded benchmark's style
     m = _medians(frames)
     assert m["mean"] > 30 and m["below_20"] < 0.3, m  # too bright: why the "real" style exists
+
+
+def test_night_statistics_definition() -> None:
+    frame = np.zeros((64, 64, 3), np.uint8)
+    frame[:, :32] = (5, 10, 15)  # luma 11: dark
+    frame[:32, 32:] = 250  # bright; the remaining quarter stays black
+    st = night_statistics(frame)
+    assert set(st) == {"mean", "blue", "green", "red", "below_20", "above_245", "noise"}
+    assert st["blue"] == pytest.approx(5 / 2 + 250 / 4)
+    assert st["red"] == pytest.approx(15 / 2 + 250 / 4)
+    assert st["mean"] == pytest.approx(11 / 2 + 250 / 4)
+    assert st["below_20"] == pytest.approx(0.75)
+    assert st["above_245"] == pytest.approx(0.25)
+    flat = night_statistics(np.full((32, 32, 3), 10, np.uint8))
+    assert flat["noise"] == pytest.approx(0.0, abs=1e-4)
+    grain = np.random.default_rng(0).normal(15, 3, (64, 64, 1)).clip(0, 255).astype(np.uint8).repeat(3, axis=2)
+    assert 1.5 < night_statistics(grain)["noise"] < 3.0  # white noise of std 3, minus its sigma-2 blur
+    assert math.isnan(night_statistics(np.full((32, 32, 3), 200, np.uint8))["noise"])

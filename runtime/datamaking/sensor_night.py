@@ -457,24 +457,3 @@ def render_night(day: list[np.ndarray], seed: list[int]) -> tuple[list[np.ndarra
     rec["gain_per_frame"] = gains
     return out, rec
 
-
-def night_statistics(frame: np.ndarray) -> dict[str, float]:
-    """The real-night-footage statistics of one BGR uint8 frame, to check a renderer against real night video.
-
-    Luma is OpenCV's BGR2GRAY; dark_noise is the std of luma minus its sigma-2 blur over pixels whose sigma-4
-    blurred luma is below 40 (NaN when there are none).
-    """
-    luma = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-    lf = luma.astype(np.float32)
-    means = frame.reshape(-1, 3).mean(axis=0)
-    high = lf - cv2.GaussianBlur(lf, (0, 0), 2)
-    dark = cv2.GaussianBlur(lf, (0, 0), 4) < 40
-    return {
-        "mean_luma": float(lf.mean()),
-        "b_mean": float(means[0]),
-        "g_mean": float(means[1]),
-        "r_mean": float(means[2]),
-        "dark_share": float((luma < 20).mean()),
-        "bright_share": float((luma > 245).mean()),
-        "dark_noise": float(high[dark].std()) if dark.any() else float("nan"),
-    }
