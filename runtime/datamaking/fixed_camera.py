@@ -162,15 +162,18 @@ def night_sequence(day: list[np.ndarray], rng: np.random.Generator, seed: list[i
 # the generator's "real" night, or one of two night models written apart from it and from each other: the camera
 # model (camera_night.py) and the sensor model (sensor_night.py; written by someone who had read neither, so it
 # stays independent of a training that renders with the other two)
-NIGHT_MODELS = ("real", "camera", "sensor")
+INDEPENDENT_NIGHTS = ("camera", "sensor")
+NIGHT_MODELS = ("real", *INDEPENDENT_NIGHTS)
 
 
 def independent_night(model: str):
     """The `render_night(day, seed) -> (frames, record)` of an independent night model by its name."""
     if model == "camera":
         from .camera_night import render_night
-    else:
+    elif model == "sensor":
         from .sensor_night import render_night
+    else:
+        raise ValueError(f"unknown independent night model {model!r}; expected one of {', '.join(INDEPENDENT_NIGHTS)}")
     return render_night
 
 
@@ -183,7 +186,7 @@ def write_tracks(frames: list[np.ndarray], tracks: list[Track], out: Path, seed:
     for k, track in enumerate(tracks):
         name = f"vid{k + 1:03d}"
         day = frames[track.start:track.start + len(track.boxes)]
-        if night in ("camera", "sensor"):  # the independent models: they share no code with night.py
+        if night in INDEPENDENT_NIGHTS:  # they share no code with night.py
             dark, cameras[f"{name}_night"] = independent_night(night)(day, [seed, k])
         else:
             dark = night_sequence(day, np.random.default_rng([seed, k]), [seed, k, 1_000_003])
