@@ -5,17 +5,17 @@ dadiff-eval run --tracker csrt|kcf|nano [--nano-dir DIR] --dataset D --output R 
 dadiff-eval score --dataset D [--json] RESULT_DIR...
 dadiff-eval table --set LABEL DATASET GLOB RESULTS [--set ...] --against TRACKER [--trackers NAME ...] [--skip-first]
 dadiff-eval anatomy --dataset D [--sequences GLOB] RESULT_DIR...
-dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12]
+dadiff-eval box-read --dataset D [--sequences GLOB] [--model M] [--shifts 0 4 8 12 | --sizes 0.7 1 1.4]
 dadiff-eval generate --output DIR --sequences 16 --max-frames 120 --seed 2026 [--source skimage|library]
                      [--night classic|real] [--cutouts DIR] [--gusts]
 dadiff-eval video --video FILE --output DIR [--seed 0] [--min-frames 60] [--max-frames 150] [--min-aspect 0]
-                  [--night real|camera]
+                  [--night real|camera|sensor]
 dadiff-eval uncut --video FILE --truth DIR --output DIR [--night-seed N]
 dadiff-eval uncut-score --dataset D RESULT_DIR...
 dadiff-eval night --dataset D --output DIR [--seed 0] [--sequences GLOB]
 dadiff-eval detect --video FILE --detector MODEL.onnx --output det.txt [--classes 1] [--tiles 3] [--min-score 0.3]
 dadiff-eval pseudo-label --video FILE --detections det.txt --output DIR [--seed 0] [--min-frames 30] [--min-score 0.35]
-                         [--night real|camera]
+                         [--night real|camera|sensor]
 dadiff-eval hit-uav --output DIR [--data DIR] [--split test|val|train] [--max-gap 20] [--min-frames 2] [--max-move 2]
 dadiff-eval cutouts --dataset D --output DIR --licence TEXT [--sequences GLOB] [--every 8] [--min-height 48]
 dadiff-eval data fetch [--cache DIR] [--packages NAME ...] [--deb DIR]
@@ -91,6 +91,7 @@ NOTE = (
 )
 
 
+MIN_SIZE, MAX_SIZE = 0.25, 4.0  # box-read --sizes: a quarter to four times the true box
 MAX_SHIFT = 255.0  # box-read --shifts, crop px: the largest shipped search crop's side; 1e308 overflowed crop.py
 MAX_GAMMA = 10.0  # run --gamma: above it every frame is black but its brightest pixels
 MAX_PACK_MIB = 65536.0  # data pack --max-mib: 64 GiB; finite and bounded, so nan and inf are one-line errors
@@ -193,6 +194,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "per shift (default: every quarter of the model's stride over one stride: 0 4 8 12 at 16; "
                            "the stride of its points, so for a finer head give its features' cells); at most "
                            f"{MAX_SHIFT:g} either way and the model's search crop")
+    read.add_argument("--sizes", nargs="+", type=float_in(MIN_SIZE, MAX_SIZE), metavar="F",
+                      help="instead of shifts: cut each crop as if the tracker held the true box times F (centre "
+                           "kept) and print how far the read follows F, its slope and the size the tracker settles "
+                           f"at (e.g. 0.7 0.85 1 1.18 1.4); {MIN_SIZE:g}-{MAX_SIZE:g}")
     read.add_argument("--threads", type=positive_int, help="onnxruntime threads (default: one per physical core)")
 
     gen = sub.add_parser("generate", help="write a night-scene benchmark (OTB layout, day and night)")
@@ -860,7 +865,15 @@ def cmd_box_read(args: argparse.Namespace) -> int:
     from ..evaluation.box_read import box_read, format_box_read
     from ..tracker import Tracker
 
+    if args.sizes and args.shifts:
+        raise EvalError("--sizes and --shifts: give one (a size read is taken at the true centre)")
     tracker = Tracker.load(args.model, threads=args.threads)
+    if args.sizes:
+        from ..evaluation.size_response import format_size_response, size_response
+
+        dataset = load_dataset(args.dataset).select(args.sequences)
+        print(format_size_response(dataset, size_response(tracker, dataset, args.sizes)))
+        return 0
     stride = tracker.geometry.stride
     shifts = args.shifts or [stride * k / 4 for k in range(4)]
     crop = tracker.geometry.instance_size
