@@ -15,7 +15,7 @@ the true box (at a large shift: the target moved that far in one frame and the t
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,14 +62,12 @@ def frames_after_first(dataset: Dataset) -> int:
     return sum(max(0, min(len(s.frames), len(s.boxes)) - 1) for s in dataset.sequences)
 
 
-def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[np.ndarray]:
-    """Per shift: (true width, log width ratio, log height ratio, centre offset along the shift in true
-    widths, 1 where the centre is outside the true box) per frame after the first of every sequence. Each
-    frame is decoded once and read at every shift."""
+def frames_with_targets(tracker: Tracker, dataset: Dataset) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """(frame, true box) for every frame after the first whose box names a target in it, the tracker
+    initialised on each sequence's first frame before its frames are given: what every read starts from."""
     if not frames_after_first(dataset):
         raise EvalError(f"{dataset.path}: no frames after the first in {len(dataset.sequences)} sequences; "
                         "nothing to read")
-    rows: list[list[tuple[float, float, float, float, float]]] = [[] for _ in shifts]
     for seq in dataset.sequences:
         check_first_box(seq.name, seq.boxes[0])
         tracker.init(read_frame(seq.frames[0]), tuple(seq.boxes[0]))
@@ -77,14 +75,22 @@ def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> 
             if not marks_a_target(box):
                 continue  # no need to decode the frame
             frame = read_frame(path)
-            if not in_frame(box, frame.shape[1], frame.shape[0]):
-                continue
-            for kept, shift in zip(rows, shifts, strict=True):
-                x, y, w, h = tracker.look(frame, tuple(box), (shift, 0.0))
-                dx = (x + w / 2) - (box[0] + (box[2] - 1) / 2)  # the true centre as the tracker places crops
-                dy = (y + h / 2) - (box[1] + (box[3] - 1) / 2)
-                outside = abs(dx) > box[2] / 2 or abs(dy) > box[3] / 2
-                kept.append((box[2], np.log(w / box[2]), np.log(h / box[3]), dx / box[2], float(outside)))
+            if in_frame(box, frame.shape[1], frame.shape[0]):
+                yield frame, box
+
+
+def read_ratios(tracker: Tracker, dataset: Dataset, shifts: Sequence[float]) -> list[np.ndarray]:
+    """Per shift: (true width, log width ratio, log height ratio, centre offset along the shift in true
+    widths, 1 where the centre is outside the true box) per frame after the first of every sequence. Each
+    frame is decoded once and read at every shift."""
+    rows: list[list[tuple[float, float, float, float, float]]] = [[] for _ in shifts]
+    for frame, box in frames_with_targets(tracker, dataset):
+        for kept, shift in zip(rows, shifts, strict=True):
+            x, y, w, h = tracker.look(frame, tuple(box), (shift, 0.0))
+            dx = (x + w / 2) - (box[0] + (box[2] - 1) / 2)  # the true centre as the tracker places crops
+            dy = (y + h / 2) - (box[1] + (box[3] - 1) / 2)
+            outside = abs(dx) > box[2] / 2 or abs(dy) > box[3] / 2
+            kept.append((box[2], np.log(w / box[2]), np.log(h / box[3]), dx / box[2], float(outside)))
     if not rows[0]:
         raise EvalError(f"{dataset.path}: all {frames_after_first(dataset)} frames after the first were skipped "
                         "(no true box inside the frame); nothing to read")

@@ -16,12 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..datamaking.datasets import Dataset, read_frame
+from ..datamaking.datasets import Dataset
 from ..tracker import Tracker
-from .box_read import frames_after_first, in_frame, marks_a_target
-from .evaluate import EvalError, check_first_box
-
-DEFAULT_SIZES = (0.7, 0.85, 1.0, 1.18, 1.4)  # +-0.36 in log: past the +-0.18 crop-scale jitter of training
+from .box_read import frames_after_first, frames_with_targets, in_frame
+from .evaluate import EvalError
 
 
 @dataclass(frozen=True)
@@ -49,20 +47,10 @@ def scaled_box(box: Sequence[float], factor: float) -> tuple[float, float, float
 def read_sizes(tracker: Tracker, dataset: Dataset, sizes: Sequence[float]) -> np.ndarray:
     """(frames, sizes, 2): log(w / true w), log(h / true h) of each frame's read at each factor. A frame is
     kept only where every scaled box names a target in it, so each factor reads the same frames."""
-    if not frames_after_first(dataset):
-        raise EvalError(f"{dataset.path}: no frames after the first in {len(dataset.sequences)} sequences; "
-                        "nothing to read")
     rows = []
-    for seq in dataset.sequences:
-        check_first_box(seq.name, seq.boxes[0])
-        tracker.init(read_frame(seq.frames[0]), tuple(seq.boxes[0]))
-        for path, box in zip(seq.frames[1:], seq.boxes[1:], strict=False):
-            if not marks_a_target(box):
-                continue
-            frame = read_frame(path)
-            boxes = [scaled_box(box, f) for f in sizes]
-            if not all(in_frame(np.asarray(b), frame.shape[1], frame.shape[0]) for b in boxes):
-                continue
+    for frame, box in frames_with_targets(tracker, dataset):
+        boxes = [scaled_box(box, f) for f in sizes]
+        if all(in_frame(np.asarray(b), frame.shape[1], frame.shape[0]) for b in boxes):
             reads = [tracker.look(frame, b) for b in boxes]
             rows.append([(np.log(w / box[2]), np.log(h / box[3])) for _, _, w, h in reads])
     if not rows:
