@@ -70,6 +70,10 @@ class Params:
     of its size against the ground around it for `still_frames` frames is 'uncertain', never 'tracking'
     (runtime/still.py: the lock on a post or a lamp a follow controller must not chase); `still_frames=0`
     turns it off, and the released tracker ignores it.
+    `swap_frames`, `swap_distance`: a box whose colours (hue and saturation of its upper and lower half) have
+    stayed further than `swap_distance` from the start box's, as the median over `swap_frames` frames, is
+    'uncertain', never 'tracking' (runtime/swap.py: the lock on another walker after a crossing);
+    `swap_frames=0` turns it off, and the released tracker ignores it.
     """
 
     lr: float
@@ -90,6 +94,8 @@ class Params:
     motion_compensation: float = 0.2
     still_frames: int = 30
     still_travel: float = 0.15
+    swap_frames: int = 9
+    swap_distance: float = 0.6
 
     @property
     def released(self) -> bool:
@@ -123,6 +129,8 @@ _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "motion_compensation": (0.0, 1.0),
     "still_frames": (0, 1000),  # 16 KB of ring per frame kept: 1000 frames is 16 MB
     "still_travel": (0.0, 100.0),
+    "swap_frames": (0, 1000),
+    "swap_distance": (0.0, 1.0),
 }
 
 

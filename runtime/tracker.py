@@ -39,6 +39,7 @@ from .lost import LOST, LostMonitor
 from .motion import PictureMotion
 from .onnx_backend import OnnxBackend
 from .still import StillCheck
+from .swap import SwapCheck
 
 
 @dataclass(frozen=True)
@@ -158,6 +159,8 @@ class Tracker:
         self._motion = PictureMotion(self.params.motion_compensation) if compensate else None
         judge_still = self.params.still_frames > 0 and not self.params.released
         self._still = StillCheck(self.params.still_frames, self.params.still_travel) if judge_still else None
+        judge_swap = self.params.swap_frames > 0 and not self.params.released
+        self._swap = SwapCheck(self.params.swap_frames, self.params.swap_distance) if judge_swap else None
         self._feeds: dict[str, np.ndarray] | None = None
         self._centre = (0.0, 0.0)
         self._size = (0.0, 0.0)
@@ -221,6 +224,9 @@ class Tracker:
         if self._still is not None:
             self._still.reset()
             self._still.observe(image, (*self._centre, w, h))
+        if self._swap is not None:
+            self._swap.reset()
+            self._swap.observe(image, (*self._centre, w, h))
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame; the search graph runs once."""
@@ -261,6 +267,8 @@ class Tracker:
         w, h = self._clip_size((w, h), img_w, img_h)
         self._centre, self._size = (cx, cy), (w, h)
         if self._still is not None and self._still.observe(image, (cx, cy, w, h)):
+            state = self._monitor.demote()
+        if self._swap is not None and self._swap.observe(image, (cx, cy, w, h)):
             state = self._monitor.demote()
         t3 = time.perf_counter()
         latency = {"motion": t_motion - t0, "crop": t1 - t_motion, "search": t2 - t1, "post": t3 - t2, "total": t3 - t0}
