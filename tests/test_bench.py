@@ -150,6 +150,17 @@ def test_bad_input_is_one_line(model_dir: Path, capsys, monkeypatch, tmp_path, a
     assert len(err.splitlines()) == 1 and expected in err and err.startswith("dadiff-bench: error:")
 
 
+def test_bad_settings_are_refused_before_the_clip_is_rendered(model_dir: Path, capsys, monkeypatch) -> None:
+    """Rendering the night clip takes 15-20 s on two cores: a mistyped --hp must not wait for it."""
+
+    def rendered(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the clip was rendered before the settings were checked")
+
+    monkeypatch.setattr(bench_cli, "write_night_video", rendered)
+    assert bench_cli.main(["--model", str(model_dir), "--hp", "swap_distance=2", "--max-frames", "2"]) == 2
+    assert "swap_distance" in capsys.readouterr().err
+
+
 class _LoggingTracker:
     """A baseline-style tracker that records which lane ran when (a test double for the turn order)."""
 

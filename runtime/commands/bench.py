@@ -149,9 +149,8 @@ def _checkpoint(args: argparse.Namespace, folder: Path) -> Path:
     return path
 
 
-def _model_lane(model: Path, args: argparse.Namespace, video: NightVideo) -> BenchLane:
-    tracker = Tracker.load(model, provider=args.provider, threads=args.threads, overrides=args.hp)
-    return BenchLane(tracker, video, args.max_frames)
+def _model_tracker(model: Path, args: argparse.Namespace) -> Tracker:
+    return Tracker.load(model, provider=args.provider, threads=args.threads, overrides=args.hp)
 
 
 def _model_result(model: Path, lane: BenchLane, run: BenchRun, args: argparse.Namespace, video: NightVideo,
@@ -394,11 +393,12 @@ def run(args: argparse.Namespace) -> dict:
     with tempfile.TemporaryDirectory(prefix="dadiff-bench-") as tmp:
         if args.sweep_steps:
             models += _sweep_models(models[0], args, Path(tmp))
+        trackers = [_model_tracker(m, args) for m in models]  # a bad --hp or model before the clip is rendered
         video = write_night_video(Path(tmp), args.seed, args.clip)
         night = None
         if args.success > 0:
             night = generated_night_set(Path(tmp) / "night", args.success, args.success_frames, SUCCESS_SEED)
-        lanes = [_model_lane(m, args, video) for m in models]
+        lanes = [BenchLane(tracker, video, args.max_frames) for tracker in trackers]
         if use_nano:  # OpenCV's threads set to ours while it runs (`_use_nano` checked the weights)
             nano_tracker = OpenCVTracker("nano", nano_dir=args.nano_dir, option="--nano")
             lanes.append(BenchLane(nano_tracker, video, args.max_frames, cv2_threads=threads))
