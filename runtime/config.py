@@ -74,6 +74,10 @@ class Params:
     stayed further than `swap_distance` from the start box's, as the median over `swap_frames` frames, is
     'uncertain', never 'tracking' (runtime/swap.py: the lock on another walker after a crossing);
     `swap_frames=0` turns it off, and the released tracker ignores it.
+    `colour_prior`: above 0, each cell's score is weighted by (1 − colour_prior) + colour_prior · how much the
+    colours around it are the start box's rather than its surroundings' when the cell is picked
+    (runtime/colour_prior.py: against a look-alike at a crossing); 0 turns it off, and the released tracker
+    and SiamGAT's decoder ignore it.
     """
 
     lr: float
@@ -96,6 +100,7 @@ class Params:
     still_travel: float = 0.15
     swap_frames: int = 9
     swap_distance: float = 0.6
+    colour_prior: float = 0.0
 
     @property
     def released(self) -> bool:
@@ -131,6 +136,7 @@ _BOUNDS: dict[str, tuple[float | None, float | None]] = {
     "still_travel": (0.0, 100.0),
     "swap_frames": (0, 1000),
     "swap_distance": (0.0, 1.0),
+    "colour_prior": (0.0, 1.0),
 }
 
 

@@ -97,15 +97,18 @@ class Decoder:
         target_h: float,
         penalty_k: float,
         window_influence: float,
+        prior: np.ndarray | None = None,
     ) -> Detection:
-        """Pick the best cell (first argmax of penalised, windowed score) for a target of this crop size."""
+        """Pick the best cell (first argmax of penalised, windowed score) for a target of this crop size;
+        `prior` (S×S) weights each cell's score in that choice only (runtime/colour_prior.py)."""
         expected = (self.score_size, self.score_size)
         if tuple(cls.shape[-2:]) != expected or tuple(loc.shape[-2:]) != expected:
             raise ValueError(f"score maps are {cls.shape} and {loc.shape}, expected (1, 2|4, {expected})")
         score = foreground_score(cls)
         cx, cy, w, h = decode_boxes(loc, self.px, self.py)
         penalty = size_penalty(w, h, target_w, target_h, penalty_k)
-        pscore = penalty * score * (1.0 - window_influence) + self.window * window_influence
+        weighted = score if prior is None else score * prior
+        pscore = penalty * weighted * (1.0 - window_influence) + self.window * window_influence
         best = int(np.argmax(pscore))
         i, j = divmod(best, self.score_size)
         return Detection(

@@ -29,6 +29,7 @@ import numpy as np
 from dadiff.models import ModelNotFoundError, resolve
 
 from .backend import Backend
+from .colour_prior import ColourPrior
 from .config import Params, parse_geometry, resolve_params
 from .crop import context_side, crop_side, mean_colour, subwindow
 from .decode import Decoder, Detection
@@ -161,6 +162,8 @@ class Tracker:
         self._still = StillCheck(self.params.still_frames, self.params.still_travel) if judge_still else None
         judge_swap = self.params.swap_frames > 0 and not self.params.released
         self._swap = SwapCheck(self.params.swap_frames, self.params.swap_distance) if judge_swap else None
+        use_prior = self.params.colour_prior > 0 and not self.params.released and not self._gat
+        self._prior = ColourPrior() if use_prior else None
         self._feeds: dict[str, np.ndarray] | None = None
         self._centre = (0.0, 0.0)
         self._size = (0.0, 0.0)
@@ -227,6 +230,8 @@ class Tracker:
         if self._swap is not None:
             self._swap.reset()
             self._swap.observe(image, (*self._centre, w, h))
+        if self._prior is not None:
+            self._prior.reset(image, self._centre, (w, h))
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame; the search graph runs once."""
@@ -246,15 +251,18 @@ class Tracker:
         s_z = self._context_side()
         scale = g.exemplar_size / s_z / growth  # crop pixels per frame pixel
         # Backends that bind their input (OnnxBackend) take the crop in place; others get a fresh array.
-        x = self._crop(image, g.instance_size, s_z * g.instance_size / g.exemplar_size * growth,
-                       getattr(self.backend, "input_buffer", None))
+        patch = subwindow(image, self._centre, g.instance_size,
+                          crop_side(s_z * g.instance_size / g.exemplar_size * growth), self._fill)
+        x = to_blob(patch, g.channel_order, getattr(self.backend, "input_buffer", None))
         t1 = time.perf_counter()
         maps = self.backend.search(x, self._feeds)
         t2 = time.perf_counter()
         img_h, img_w = image.shape[:2]
         w, h = self._size
         if all(np.isfinite(m).all() for m in maps):
-            det = self._detect(maps, w * scale, h * scale, scale)
+            prior = None if self._prior is None else self._prior.weights(
+                patch, (w * scale, h * scale), (self._decode.px, self._decode.py), self.params.colour_prior)
+            det = self._detect(maps, w * scale, h * scale, scale, prior)
         else:  # a broken model (NaN weights) or a NaN input: a miss that holds the box and counts towards lost
             det = Detection(0.0, 0.0, w * scale, h * scale, 0.0, 0.0, -1)
         size, plausible = self._propose_size(det, scale, img_w, img_h)
@@ -300,13 +308,14 @@ class Tracker:
         bw, bh = det.w / scale, det.h / scale
         return cx - bw / 2, cy - bh / 2, bw, bh
 
-    def _detect(self, maps: Sequence[np.ndarray], target_w: float, target_h: float, scale: float) -> Detection:
+    def _detect(self, maps: Sequence[np.ndarray], target_w: float, target_h: float, scale: float,
+                prior: np.ndarray | None = None) -> Detection:
         """The decoder's choice on the search graph's maps, for a target of this size in crop pixels."""
         p = self.params
         if self._gat:
             cls, loc, cen = maps[:3]
             return self._decode(cls, loc, cen, target_w, target_h, scale, p.penalty_k, p.window_influence)
-        return self._decode(maps[0], maps[1], target_w, target_h, p.penalty_k, p.window_influence)
+        return self._decode(maps[0], maps[1], target_w, target_h, p.penalty_k, p.window_influence, prior)
 
     def _propose_size(self, det: Detection, scale: float, img_w: int, img_h: int) -> tuple[tuple[float, float], bool]:
         """The size this detection leads to (released lr blend, then the bounds and the frame clip) and

@@ -272,7 +272,7 @@ def _hp(rng: random.Random) -> str:
     keys = ("lr", "penalty_k", "window_influence", "uncertain_score", "found_score", "lost_score", "lost_frames",
             "search_growth", "search_growth_max", "track_score", "score_smoothing", "max_scale_step",
             "max_scale_change", "max_aspect_change", "max_frame_cover", "motion_compensation", "still_frames",
-            "still_travel", "swap_frames", "swap_distance", "no_such_key")
+            "still_travel", "swap_frames", "swap_distance", "colour_prior", "no_such_key")
     values = ("1e308", "-1e308", "nan", "inf", "0", "1", "-0", "1e-308", "2", "0.5", "x", "3.0", "1000000")
     return ",".join(f"{rng.choice(keys)}={rng.choice(values)}" for _ in range(rng.randrange(1, 4)))
 
