@@ -8,6 +8,10 @@ Differences from the released tracker, all switchable through parameters:
   (`motion_compensation`, runtime/motion.py);
 - a box that stands still on the ground around it after moving (a lock on a post or a lamp) is 'uncertain',
   not 'tracking' (`still_frames`, runtime/still.py);
+- so is a box whose colours have left the start box's (a lock on another walker after a crossing,
+  `swap_frames`, runtime/swap.py);
+- with `colour_prior` (off by default) the cell is picked with a weight for the start box's colours against
+  its surroundings' (runtime/colour_prior.py);
 - plausibility: the size changes by at most `max_scale_step` per frame and stays within `max_scale_change`
   (scale) and `max_aspect_change` (aspect) of the initial box; a box held at those limits or covering more
   than `max_frame_cover` of the frame is never 'tracking'; tracking/uncertain follow a smoothed confidence
