@@ -20,15 +20,11 @@ import math
 import cv2
 import numpy as np
 
-HUE_BINS, SATURATION_BINS = 16, 8
+from .swap import HS_RANGES, hue_saturation
+
 RING_SIDES = 3.0  # the ring reaches this many box sides across: the ground and whoever stands near
 INNER = 0.8  # the target's colours are counted in the middle of the box this much of its width and height
 SHRINK = 4  # the search crop is read back at this fraction of its side
-_RANGES = [0, 180, 0, 256]
-
-
-def _histogram(hsv: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
-    return cv2.calcHist([hsv], [0, 1], mask, [HUE_BINS, SATURATION_BINS], _RANGES)
 
 
 class ColourPrior:
@@ -51,11 +47,11 @@ class ColourPrior:
         hsv = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_BGR2HSV)
         box = np.zeros(hsv.shape[:2], np.uint8)
         inner = np.zeros_like(box)
-        for mask, scale, value in ((box, 1.0, 255), (inner, INNER, 255)):
+        for mask, scale in ((box, 1.0), (inner, INNER)):
             bx0, by0 = int(cx - scale * w / 2) - x0, int(cy - scale * h / 2) - y0
             bx1, by1 = int(cx + scale * w / 2) - x0 + 1, int(cy + scale * h / 2) - y0 + 1
-            mask[max(0, by0):max(0, by1), max(0, bx0):max(0, bx1)] = value
-        target, ring = _histogram(hsv, inner), _histogram(hsv, cv2.bitwise_not(box))
+            mask[max(0, by0):max(0, by1), max(0, bx0):max(0, bx1)] = 255
+        target, ring = hue_saturation(hsv, inner), hue_saturation(hsv, cv2.bitwise_not(box))
         if target.sum() == 0:
             return
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -75,7 +71,7 @@ class ColourPrior:
         small = np.ascontiguousarray(patch[::SHRINK, ::SHRINK])
         side = small.shape[1]
         hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
-        likely = cv2.calcBackProject([hsv], [0, 1], self._table, _RANGES, 1.0).astype(np.float32)
+        likely = cv2.calcBackProject([hsv], [0, 1], self._table, HS_RANGES, 1.0).astype(np.float32)
         f = 1.0 / SHRINK  # small pixels per crop pixel
         kw, kh = (min(side, max(1, int(round(length * f)))) for length in target)
         mean = cv2.blur(likely, (kw, kh), borderType=cv2.BORDER_CONSTANT)

@@ -32,9 +32,15 @@ import numpy as np
 
 INNER = 0.6  # the middle of the box this much of its width and height: the target, not the ground beside it
 HUE_BINS, SATURATION_BINS = 16, 8
+HS_RANGES = [0, 180, 0, 256]  # OpenCV's 8-bit hue and saturation
 RETURN_MARGIN = 0.1  # a swapped box is swapped until its median distance is this much under the bound
 CALIBRATION_FRAMES = 10  # the frames after the start that measure how far the target's own colours wander
 SELF_MARGIN = 0.2  # the bound is at least this much above that wander
+
+
+def hue_saturation(hsv: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """The HUE_BINS x SATURATION_BINS histogram (counts) of an HSV image's pixels, those under `mask` only."""
+    return cv2.calcHist([hsv], [0, 1], mask, [HUE_BINS, SATURATION_BINS], HS_RANGES)
 
 
 def colour_histogram(image: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray | None:
@@ -54,8 +60,7 @@ def colour_histogram(image: np.ndarray, box: tuple[float, float, float, float]) 
     hsv = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_BGR2HSV)
     middle = max(1, hsv.shape[0] // 2)
     halves = (hsv[:middle], hsv[middle:]) if hsv.shape[0] > 1 else (hsv, hsv)
-    parts = [cv2.calcHist([half], [0, 1], None, [HUE_BINS, SATURATION_BINS], [0, 180, 0, 256]).ravel()
-             for half in halves]
+    parts = [hue_saturation(half).ravel() for half in halves]
     return np.concatenate([part / (2 * part.sum()) for part in parts]).astype(np.float32)
 
 

@@ -203,9 +203,12 @@ class Tracker:
     def _context_side(self) -> float:
         return context_side(*self._size, self.geometry.context_amount)
 
+    def _patch(self, image: np.ndarray, out_size: int, side: float) -> np.ndarray:
+        """The uint8 crop of `side` frame pixels around the current centre, resized to `out_size`."""
+        return subwindow(image, self._centre, out_size, crop_side(side), self._fill)
+
     def _crop(self, image: np.ndarray, out_size: int, side: float, out: np.ndarray | None = None) -> np.ndarray:
-        patch = subwindow(image, self._centre, out_size, crop_side(side), self._fill)
-        return to_blob(patch, self.geometry.channel_order, out)
+        return to_blob(self._patch(image, out_size, side), self.geometry.channel_order, out)
 
     def init(self, frame: np.ndarray, box: Sequence[float]) -> None:
         """Start tracking `box` = (x, y, w, h) in `frame`; runs the template graph once.
@@ -255,8 +258,7 @@ class Tracker:
         s_z = self._context_side()
         scale = g.exemplar_size / s_z / growth  # crop pixels per frame pixel
         # Backends that bind their input (OnnxBackend) take the crop in place; others get a fresh array.
-        patch = subwindow(image, self._centre, g.instance_size,
-                          crop_side(s_z * g.instance_size / g.exemplar_size * growth), self._fill)
+        patch = self._patch(image, g.instance_size, s_z * g.instance_size / g.exemplar_size * growth)
         x = to_blob(patch, g.channel_order, getattr(self.backend, "input_buffer", None))
         t1 = time.perf_counter()
         maps = self.backend.search(x, self._feeds)
