@@ -128,9 +128,9 @@ def test_the_shipped_default_is_a_trained_mobile_model() -> None:
     tracker = Tracker.load(threads=1)
     assert tracker.backend.meta["family"] == "dadiff-mobile"
     card = (folder / "MODEL_CARD.md").read_text()
-    assert "runs/dadiff-mobile/10-people-neck-side/final-ema.pt" in card  # names its run (the recipe's last stage)
+    assert "runs/dadiff-mobile/11-people-tracks-more/final-ema.pt" in card  # names its run (the recipe's last stage)
     # the training state the card says it was exported from is committed and is what the graphs came from
-    state = "export/resume/mobile-dadiff-people-s70-ema-average.pt"
+    state = "export/resume/mobile-dadiff-tracks-s81-ema-average.pt"
     assert f"`{state}`" in card
     repo = Path(__file__).resolve().parents[1]
     assert hashlib.sha256((repo / state).read_bytes()).hexdigest() == tracker.backend.meta["source_sha256"]

@@ -60,7 +60,7 @@ def test_trained_model_at_223_tracks_a_night_sequence(tmp_path, capsys):
     from dadiff.runtime.evaluation.metrics import success_curve
 
     resume = Path(__file__).resolve().parents[1] / "export" / "resume"
-    checkpoint = resume / "mobile-dadiff-people-s70-ema-average.pt"
+    checkpoint = resume / "mobile-dadiff-tracks-s81-ema-average.pt"
     code = main([str(checkpoint), "-o", str(tmp_path / "m223"), "--search-size", "223"])
     out = capsys.readouterr().out
     assert code == 0 and "search crop 223 px, score map 11 x 11" in out
