@@ -52,7 +52,7 @@ def test_the_default_and_its_ablation_are_one_command_each() -> None:
     """The default's recipe from ImageNet, and its ablation the same stages without the DaDiff block."""
     default, ablation = (load_recipe(REPO / "export" / "configs" / name)
                          for name in ("dadiff-mobile.toml", "dadiff-mobile-no-dadiff.toml"))
-    assert default[0].cfg.init == ablation[0].cfg.init == "imagenet" and len(default) == len(ablation) == 10
+    assert default[0].cfg.init == ablation[0].cfg.init == "imagenet" and len(default) == len(ablation) == 11
     assert default[-1].result.name == ablation[-1].result.name == "final-ema.pt"
     joined = next(i for i, stage in enumerate(default) if stage.cfg.stage == "dadiff")
     assert all(stage.cfg.stage == "baseline" for stage in ablation) and joined == 3
